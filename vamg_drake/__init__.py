@@ -1,0 +1,1 @@
+"""Visibility-aware mobile grasping in dynamic environments, as a Drake systems diagram."""
