@@ -79,8 +79,9 @@ FINGER_LIMITS = (0.0, 0.05)
 FINGER_VELOCITY = 0.05
 GRIPPER_MAX_OPENING = 0.10
 
-#: A tucked arm that keeps the Fetch inside its base footprint while driving.
-Q_ARM_STOW = np.array([1.32, 1.40, -0.2, 1.72, 0.0, 1.66, 0.0])
+#: A tucked arm (near the Fetch's own tuck pose, moved to keep >= 2 cm of
+#: clearance in the sphere model) that stays inside the base footprint.
+Q_ARM_STOW = np.array([1.335, 1.411, -0.279, 1.718, 0.002, 1.584, 0.046])
 #: The default torso height while driving.
 TORSO_STOW = 0.05
 
