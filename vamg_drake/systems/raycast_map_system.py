@@ -1,0 +1,79 @@
+"""RayCastMap: the LeafSystem adapter over `vamg_drake.perception.raycast_map.PointMap`."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform
+from pydrake.systems.framework import EventStatus, LeafSystem
+from pydrake.systems.sensors import ImageDepth32F
+
+from vamg_drake.perception.raycast_map import PointMap, RayCastMapConfig
+from vamg_drake.robot import layout
+from vamg_drake.robot.head_camera import CameraIntrinsics
+
+_log = logging.getLogger(__name__)
+
+
+class RayCastMap(LeafSystem):
+    """Integrates head depth images into the ray-cast map M_t at a fixed period.
+
+    .. pydrake_system::
+
+        name: RayCastMap
+        input_ports:
+        - depth_image (ImageDepth32F)
+        - X_WC (RigidTransform, the depth optical frame)
+        - robot_configuration (11-vector q, for self-filtering)
+        output_ports:
+        - point_map (PointMapSnapshot)
+
+    The map core lives in the context's abstract state; each periodic update
+    reads the three inputs, runs `PointMap.update` with the robot's spheres at
+    q, and publishes a fresh immutable `PointMapSnapshot`. Rejected inputs are
+    logged by the core and leave the map unchanged.
+    """
+
+    def __init__(
+        self,
+        intrinsics: CameraIntrinsics,
+        config: RayCastMapConfig | None = None,
+        period: float = 0.1,
+        self_filter: bool = True,
+    ):
+        super().__init__()
+        self._intrinsics = intrinsics
+        self._config = config or RayCastMapConfig()
+        self._spheres = None
+        if self_filter:
+            from vamg_drake.robot.spheres import SphereModel
+
+            self._spheres = SphereModel.load()
+        self._depth_port = self.DeclareAbstractInputPort(
+            "depth_image", AbstractValue.Make(ImageDepth32F(intrinsics.width, intrinsics.height))
+        )
+        self._pose_port = self.DeclareAbstractInputPort("X_WC", AbstractValue.Make(RigidTransform()))
+        self._q_port = self.DeclareVectorInputPort("robot_configuration", layout.NQ)
+        core = PointMap(intrinsics, self._config)
+        self._core_index = self.DeclareAbstractState(AbstractValue.Make(core))
+        self._snapshot_index = self.DeclareAbstractState(AbstractValue.Make(core.snapshot()))
+        self.DeclareStateOutputPort("point_map", self._snapshot_index)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._update)
+
+    def _update(self, context, state) -> EventStatus:
+        core: PointMap = state.get_mutable_abstract_state(self._core_index).get_mutable_value()
+        depth = self._depth_port.Eval(context).data
+        X_WC = self._pose_port.Eval(context).GetAsMatrix4()
+        centers = radii = None
+        if self._spheres is not None:
+            q = np.asarray(self._q_port.Eval(context), dtype=float)
+            if np.all(np.isfinite(q)):
+                centers, radii = self._spheres.world_spheres(q), self._spheres.radius
+            else:
+                centers, radii = np.full((1, 3), np.nan), np.ones(1)  # the core logs and rejects
+        stats = core.update(depth, X_WC, centers, radii)
+        if stats.ok and (stats.num_added or stats.num_carved):
+            state.get_mutable_abstract_state(self._snapshot_index).set_value(core.snapshot())
+        return EventStatus.Succeeded()
