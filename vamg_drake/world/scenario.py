@@ -1,0 +1,671 @@
+"""Scenario: what is in the room, as dataclasses loaded from YAML.
+
+A scenario is one YAML file read with ``pydrake.common.yaml.yaml_load_typed``
+(the format is described in ``vamg_drake/world/README.md``). Shapes and dynamic
+events are tagged unions (``!Box``, ``!Cylinder``, ``!AppearAtDistance``, ...).
+
+Frames: W is the world (z up, floor top at z = 0). A furniture frame F sits on
+the floor at (x, y) with yaw; its parts are given in F. An object's frame O has
+its origin at the object's centroid (see ``vamg_drake.world.ycb``), so the
+target point p is the translation of X_WO of the target object.
+
+Every malformed, incomplete or inconsistent scenario raises ``ScenarioError``
+whose lines name the file and the field, e.g.
+``scenario.yaml: objects[2].name: unknown YCB object 'foo' (known: ...)``.
+"""
+
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
+
+from vamg_drake.world.primitives import (
+    WorldBox,
+    WorldCylinder,
+    WorldPrimitive,
+    distance_to_polygon_boundary,
+    footprint_clearance,
+    points_in_polygon,
+    polygon_area,
+    rotation_from_rpy,
+    rotation_z,
+    signed_distance_to_polygon,
+)
+from vamg_drake.world.ycb import YCB_OBJECTS
+
+FURNITURE_KINDS = ("table", "counter", "shelf", "chair", "sofa", "cabinet")
+#: Subgoal-policy phases an ``AppearAtPhase`` event may name.
+POLICY_PHASES = ("observe", "pre_grasp", "grasp")
+#: The Fetch base footprint radius [m] used for start-pose checks.
+ROBOT_FOOTPRINT_RADIUS = 0.32
+#: The paper's drop-check band for an object above its support [m].
+SUPPORT_HEIGHT_BAND = (-0.05, 0.30)
+
+
+class ScenarioError(ValueError):
+    """A scenario is malformed or inconsistent.
+
+    Attributes:
+        problems: one "<source>: <field>: <message>" line per problem.
+    """
+
+    def __init__(self, problems: list[str]):
+        self.problems = list(problems)
+        super().__init__("\n".join(self.problems))
+
+
+# ---------------------------------------------------------------- shapes
+
+
+@dataclass
+class Box:
+    """A box with full side lengths ``size`` = [x, y, z] (like Drake's Box)."""
+
+    size: list[float] = field(default_factory=lambda: [0.1, 0.1, 0.1])
+
+
+@dataclass
+class Cylinder:
+    """A cylinder along its frame's z axis (like Drake's Cylinder)."""
+
+    radius: float = 0.3
+    length: float = 1.7
+
+
+Shape = Box | Cylinder
+
+
+def _shape_top_half_height(shape: Shape) -> float:
+    return 0.5 * (shape.size[2] if isinstance(shape, Box) else shape.length)
+
+
+def world_primitive(name: str, shape: Shape, p_W: np.ndarray, R_W: np.ndarray) -> WorldPrimitive:
+    """Returns the world primitive for ``shape`` at (p_W, R_W)."""
+    if isinstance(shape, Box):
+        return WorldBox(name, p_W, R_W, 0.5 * np.asarray(shape.size, dtype=float))
+    return WorldCylinder(name, p_W, R_W, float(shape.radius), float(shape.length))
+
+
+# ------------------------------------------------------------------ room
+
+
+@dataclass
+class PlanarPose:
+    """A pose on the floor: position (x, y) [m] and heading ``yaw`` [rad]."""
+
+    x: float = 0.0
+    y: float = 0.0
+    yaw: float = 0.0
+
+
+@dataclass
+class Doorway:
+    """A gap in the wall along outline edge ``edge`` (vertex edge -> edge+1).
+
+    Attributes:
+        edge: index of the outline edge.
+        center: distance [m] of the gap centre from the edge's first vertex.
+        width: gap width [m].
+    """
+
+    edge: int = 0
+    center: float = 0.5
+    width: float = 0.9
+
+
+@dataclass
+class Room:
+    """The room: a simple floor polygon bounded by walls outside it.
+
+    Attributes:
+        outline: floor polygon vertices [[x, y], ...] (rectangle: 4, L: 6).
+        wall_thickness: walls are built outside the outline [m].
+        wall_height: [m].
+        doorways: gaps in the walls.
+    """
+
+    outline: list[list[float]] = field(default_factory=list)
+    wall_thickness: float = 0.1
+    wall_height: float = 2.4
+    doorways: list[Doorway] = field(default_factory=list)
+
+    def polygon(self) -> np.ndarray:
+        """Returns the (k, 2) outline, counter-clockwise."""
+        poly = np.asarray(self.outline, dtype=float).reshape(-1, 2)
+        return poly if polygon_area(poly) >= 0 else poly[::-1]
+
+    def area(self) -> float:
+        """Returns the floor area [m^2]."""
+        return abs(polygon_area(np.asarray(self.outline, dtype=float).reshape(-1, 2)))
+
+    def wall_segments(self) -> list[tuple[int, np.ndarray, np.ndarray]]:
+        """Returns the wall pieces (edge index, start xy, end xy) along the outline.
+
+        Edges follow the ``outline`` as written (so ``Doorway.edge`` indexes it);
+        doorway gaps are cut out.
+        """
+        poly = np.asarray(self.outline, dtype=float).reshape(-1, 2)
+        pieces = []
+        for i in range(len(poly)):
+            a, b = poly[i], poly[(i + 1) % len(poly)]
+            length = float(np.linalg.norm(b - a))
+            u = (b - a) / length
+            gaps = sorted(
+                (d.center - 0.5 * d.width, d.center + 0.5 * d.width)
+                for d in self.doorways
+                if d.edge == i
+            )
+            s = 0.0
+            for lo, hi in gaps + [(length, length)]:
+                if lo - s > 1e-6:
+                    pieces.append((i, a + s * u, a + lo * u))
+                s = max(s, hi)
+        return pieces
+
+    def wall_primitives(self) -> list[WorldBox]:
+        """Returns the walls as boxes just outside the outline (corners overlap)."""
+        poly = np.asarray(self.outline, dtype=float).reshape(-1, 2)
+        sign = 1.0 if polygon_area(poly) >= 0 else -1.0  # outward = right of a CCW edge
+        t = self.wall_thickness
+        boxes = []
+        for k, (i, a, b) in enumerate(self.wall_segments()):
+            u = (b - a) / np.linalg.norm(b - a)
+            outward = sign * np.array([u[1], -u[0]])
+            # Extend by t at ends that are outline corners, so corners close.
+            edge_a, edge_b = poly[i], poly[(i + 1) % len(poly)]
+            ext_a = t if np.allclose(a, edge_a) else 0.0
+            ext_b = t if np.allclose(b, edge_b) else 0.0
+            a2, b2 = a - ext_a * u, b + ext_b * u
+            center = 0.5 * (a2 + b2) + 0.5 * t * outward
+            yaw = math.atan2(u[1], u[0])
+            size = [float(np.linalg.norm(b2 - a2)), t, self.wall_height]
+            boxes.append(
+                WorldBox(
+                    f"wall/{k}",
+                    np.array([center[0], center[1], 0.5 * self.wall_height]),
+                    rotation_z(yaw),
+                    0.5 * np.asarray(size),
+                )
+            )
+        return boxes
+
+
+# ------------------------------------------------------------- furniture
+
+
+@dataclass
+class Part:
+    """A primitive part of a piece of furniture, posed in the furniture frame F.
+
+    Attributes:
+        name: unique within its furniture.
+        shape: ``!Box`` or ``!Cylinder``.
+        xyz: part centre in F [m].
+        rpy: part orientation in F [rad].
+        support: whether the part's top face is a support surface.
+        rgba: colour.
+    """
+
+    name: str = ""
+    shape: Box | Cylinder = field(default_factory=Box)
+    xyz: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    rpy: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    support: bool = False
+    rgba: list[float] = field(default_factory=lambda: [0.6, 0.5, 0.4, 1.0])
+
+
+@dataclass
+class Furniture:
+    """A piece of furniture welded to the world.
+
+    Attributes:
+        name: unique in the scenario, e.g. "table_0".
+        kind: one of FURNITURE_KINDS.
+        pose: frame F on the floor.
+        parts: its primitives.
+    """
+
+    name: str = ""
+    kind: str = "table"
+    pose: PlanarPose = field(default_factory=PlanarPose)
+    parts: list[Part] = field(default_factory=list)
+
+    def X_WF(self) -> tuple[np.ndarray, np.ndarray]:
+        """Returns (p_WF, R_WF)."""
+        return np.array([self.pose.x, self.pose.y, 0.0]), rotation_z(self.pose.yaw)
+
+    def part_pose(self, part: Part) -> tuple[np.ndarray, np.ndarray]:
+        """Returns (p_WP, R_WP) of a part."""
+        p_WF, R_WF = self.X_WF()
+        return p_WF + R_WF @ np.asarray(part.xyz, float), R_WF @ rotation_from_rpy(part.rpy)
+
+    def primitives(self) -> list[WorldPrimitive]:
+        """Returns the parts as world primitives named "<furniture>/<part>"."""
+        return [
+            world_primitive(f"{self.name}/{p.name}", p.shape, *self.part_pose(p))
+            for p in self.parts
+        ]
+
+
+@dataclass(frozen=True)
+class SupportSurface:
+    """The top face of a support part, in W.
+
+    Attributes:
+        id: "<furniture>/<part>".
+        height: z of the top face [m].
+        primitive: the part; its footprint is the usable top.
+    """
+
+    id: str
+    height: float
+    primitive: WorldPrimitive
+
+    def contains_xy(self, p_xy: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """Whether (N, 2) points lie on the top at least ``margin`` inside its edge."""
+        return signed_distance_to_polygon(p_xy, self.primitive.footprint()) <= -margin
+
+
+# --------------------------------------------------------------- objects
+
+
+@dataclass
+class PlacedObject:
+    """A YCB object resting on a support surface.
+
+    Attributes:
+        name: the YCB object (a key of ``ycb.YCB_OBJECTS``); unique per scenario.
+        xyz: p_WO, the object centroid [m].
+        rpy: R_WO as roll, pitch, yaw [rad].
+        support: id of the support surface, "<furniture>/<part>".
+        support_height: z of that surface [m].
+    """
+
+    name: str = ""
+    xyz: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    rpy: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    support: str = ""
+    support_height: float = 0.0
+
+
+# -------------------------------------------------------- dynamic events
+
+
+@dataclass
+class AppearAtDistance:
+    """An obstacle that appears when the robot base comes within a distance.
+
+    Defaults are the paper's pedestrian: a cylinder r 0.3 m, h 1.7 m, appearing
+    when the horizontal distance from the base origin to ``xyz`` is <= 1.7 m.
+
+    Attributes:
+        name: unique among the events.
+        shape: obstacle shape, centred at ``xyz`` when visible.
+        xyz: shape centre in W when visible [m].
+        yaw: shape yaw about its centre [rad].
+        trigger_distance: [m].
+        rgba: colour.
+    """
+
+    name: str = ""
+    shape: Cylinder | Box = field(default_factory=Cylinder)
+    xyz: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.85])
+    yaw: float = 0.0
+    trigger_distance: float = 1.7
+    rgba: list[float] = field(default_factory=lambda: [0.9, 0.3, 0.2, 1.0])
+
+
+@dataclass
+class AppearAtPhase:
+    """A (small, table-top) obstacle that appears when the policy enters a phase.
+
+    Attributes:
+        name: unique among the events.
+        shape: obstacle shape, centred at ``xyz`` when visible.
+        xyz: shape centre in W when visible [m].
+        yaw: [rad].
+        phase: one of POLICY_PHASES.
+        rgba: colour.
+    """
+
+    name: str = ""
+    shape: Box | Cylinder = field(default_factory=lambda: Box([0.08, 0.08, 0.12]))
+    xyz: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    yaw: float = 0.0
+    phase: str = "pre_grasp"
+    rgba: list[float] = field(default_factory=lambda: [0.9, 0.6, 0.1, 1.0])
+
+
+@dataclass
+class MoveAlongPath:
+    """An obstacle moving through waypoints at constant speed from ``start_time``.
+
+    Attributes:
+        name: unique among the events.
+        shape: obstacle shape, centred on the path.
+        waypoints: [[x, y, z], ...] shape centres in W (at least 2).
+        speed: [m/s] (the paper's moving obstacles: 0.2).
+        start_time: [s]; before it the obstacle waits at the first waypoint.
+        loop: at the end, run the path backwards and forwards again; else stop.
+        yaw: [rad].
+        rgba: colour.
+    """
+
+    name: str = ""
+    shape: Cylinder | Box = field(default_factory=Cylinder)
+    waypoints: list[list[float]] = field(default_factory=list)
+    speed: float = 0.2
+    start_time: float = 0.0
+    loop: bool = True
+    yaw: float = 0.0
+    rgba: list[float] = field(default_factory=lambda: [0.2, 0.4, 0.9, 1.0])
+
+    def position_at(self, t: float) -> np.ndarray:
+        """Returns the shape centre in W at time ``t`` [s]."""
+        points = np.asarray(self.waypoints, dtype=float)
+        seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
+        total = float(seg.sum())
+        s = max(0.0, t - self.start_time) * self.speed
+        if total <= 0.0:
+            return points[0].copy()
+        if self.loop:
+            s = s % (2.0 * total)
+            s = 2.0 * total - s if s > total else s
+        else:
+            s = min(s, total)
+        cumulative = np.concatenate([[0.0], np.cumsum(seg)])
+        i = int(np.clip(np.searchsorted(cumulative, s, side="right") - 1, 0, len(seg) - 1))
+        u = 0.0 if seg[i] == 0 else (s - cumulative[i]) / seg[i]
+        return points[i] + u * (points[i + 1] - points[i])
+
+
+DynamicEvent = AppearAtDistance | AppearAtPhase | MoveAlongPath
+
+
+# --------------------------------------------------------------- scenario
+
+
+@dataclass
+class Scenario:
+    """One grasping task in one room.
+
+    Attributes:
+        name: scenario name.
+        seed: the generator seed (or any number for hand-written scenarios).
+        room: walls and doorways.
+        furniture: welded furniture.
+        objects: YCB objects on support surfaces.
+        target: name of the object to grasp.
+        robot_start: base pose (x, y, yaw = theta).
+        dynamic_events: obstacles that appear or move during the episode.
+        time_limit: episode time limit [s].
+    """
+
+    name: str = ""
+    seed: int = 0
+    room: Room = field(default_factory=Room)
+    furniture: list[Furniture] = field(default_factory=list)
+    objects: list[PlacedObject] = field(default_factory=list)
+    target: str = ""
+    robot_start: PlanarPose = field(default_factory=PlanarPose)
+    dynamic_events: list[AppearAtDistance | AppearAtPhase | MoveAlongPath] = field(
+        default_factory=list
+    )
+    time_limit: float = 120.0
+
+    def object(self, name: str) -> PlacedObject:
+        """Returns the placed object called ``name`` (KeyError if absent)."""
+        for obj in self.objects:
+            if obj.name == name:
+                return obj
+        raise KeyError(f"no object {name!r} in scenario {self.name!r}")
+
+    def target_point(self) -> np.ndarray:
+        """Returns p, the target object's centroid in W."""
+        return np.asarray(self.object(self.target).xyz, dtype=float)
+
+    def support_surfaces(self) -> list[SupportSurface]:
+        """Returns every support surface (parts with ``support: true``)."""
+        surfaces = []
+        for furniture in self.furniture:
+            for part in furniture.parts:
+                if not part.support:
+                    continue
+                p_WP, R_WP = furniture.part_pose(part)
+                top = float(p_WP[2] + _shape_top_half_height(part.shape))
+                surfaces.append(
+                    SupportSurface(
+                        f"{furniture.name}/{part.name}",
+                        top,
+                        world_primitive(f"{furniture.name}/{part.name}", part.shape, p_WP, R_WP),
+                    )
+                )
+        return surfaces
+
+
+def static_obstacle_shapes(scenario: Scenario) -> list[WorldPrimitive]:
+    """Returns walls and furniture as world primitives (no floor, no objects)."""
+    shapes: list[WorldPrimitive] = list(scenario.room.wall_primitives())
+    for furniture in scenario.furniture:
+        shapes.extend(furniture.primitives())
+    return shapes
+
+
+# ---------------------------------------------------------------- YAML IO
+
+
+def scenario_to_yaml(scenario: Scenario) -> str:
+    """Returns the YAML text of a scenario (Drake's yaml_dump_typed)."""
+    return yaml_dump_typed(scenario)
+
+
+def scenario_from_yaml(text: str, source: str = "<string>") -> Scenario:
+    """Parses and validates YAML text; ``source`` names it in errors."""
+    try:
+        scenario = yaml_load_typed(schema=Scenario, data=text)
+    except Exception as e:  # Drake raises RuntimeError/ValueError, PyYAML its own.
+        message = " ".join(str(e).split())
+        raise ScenarioError([f"{source}: YAML does not match the Scenario schema: {message}"]) from e
+    validate_scenario(scenario, source)
+    return scenario
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Loads and validates a scenario file.
+
+    Raises:
+        ScenarioError: naming the file and the field.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ScenarioError([f"{path}: no such scenario file"])
+    return scenario_from_yaml(path.read_text(), source=path.name)
+
+
+def save_scenario(scenario: Scenario, path: str | Path) -> None:
+    """Writes a scenario as YAML (validated first, so only good files are written)."""
+    validate_scenario(scenario, str(path))
+    Path(path).write_text(scenario_to_yaml(scenario))
+
+
+# ------------------------------------------------------------- validation
+
+
+def _finite_vector(value, n: int) -> bool:
+    try:
+        v = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    return v.shape == (n,) and bool(np.all(np.isfinite(v)))
+
+
+def _check_shape(shape: Shape, where: str, problems: list[str]) -> None:
+    if isinstance(shape, Box):
+        if not _finite_vector(shape.size, 3) or min(shape.size) <= 0:
+            problems.append(f"{where}.size: needs 3 positive lengths, got {shape.size}")
+    elif not (shape.radius > 0 and shape.length > 0):
+        problems.append(f"{where}: radius and length must be positive")
+
+
+def _segments_cross(a, b, c, d) -> bool:
+    def orient(p, q, r):
+        return np.sign((q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0]))
+
+    return orient(a, b, c) * orient(a, b, d) < 0 and orient(c, d, a) * orient(c, d, b) < 0
+
+
+def _check_room(room: Room, problems: list[str]) -> bool:
+    if len(room.outline) < 3:
+        problems.append("room.outline: needs at least 3 [x, y] vertices")
+        return False
+    if not all(_finite_vector(v, 2) for v in room.outline):
+        problems.append("room.outline: every vertex must be a finite [x, y]")
+        return False
+    poly = np.asarray(room.outline, dtype=float)
+    n = len(poly)
+    for i in range(n):
+        for j in range(i + 2, n):
+            if i == 0 and j == n - 1:
+                continue
+            if _segments_cross(poly[i], poly[(i + 1) % n], poly[j], poly[(j + 1) % n]):
+                problems.append(f"room.outline: edges {i} and {j} cross (not a simple polygon)")
+                return False
+    if room.area() <= 0.0:
+        problems.append("room.outline: zero area")
+        return False
+    if not (room.wall_thickness > 0 and room.wall_height > 0):
+        problems.append("room: wall_thickness and wall_height must be positive")
+    for k, door in enumerate(room.doorways):
+        where = f"room.doorways[{k}]"
+        if not 0 <= door.edge < n:
+            problems.append(f"{where}.edge: {door.edge} is not an outline edge (0..{n - 1})")
+            continue
+        length = float(np.linalg.norm(poly[(door.edge + 1) % n] - poly[door.edge]))
+        if door.width <= 0 or door.center - 0.5 * door.width < 0 or door.center + 0.5 * door.width > length:
+            problems.append(f"{where}: gap [{door.center} +- {door.width / 2}] does not fit edge of length {length:.3f}")
+    return True
+
+
+def validate_scenario(scenario: Scenario, source: str = "<scenario>") -> None:
+    """Checks a scenario for completeness and consistency.
+
+    Checks: required fields present; room outline a simple polygon with valid
+    doorways; furniture kinds, names, shapes; objects are known YCB names,
+    unique, on an existing support surface (inside its top, within the
+    drop-check height band); the target is one of the objects; the robot start
+    footprint (r = ROBOT_FOOTPRINT_RADIUS) inside the room and clear of walls
+    and furniture; dynamic events well formed.
+
+    Raises:
+        ScenarioError: listing every problem as "<source>: <field>: <message>".
+    """
+    problems: list[str] = []
+    if not scenario.name:
+        problems.append("name: missing")
+    if not scenario.time_limit > 0:
+        problems.append(f"time_limit: must be positive, got {scenario.time_limit}")
+    room_ok = _check_room(scenario.room, problems)
+
+    furniture_names: set[str] = set()
+    problems_before_furniture = len(problems)
+    for i, furniture in enumerate(scenario.furniture):
+        where = f"furniture[{i}]"
+        if not furniture.name:
+            problems.append(f"{where}.name: missing")
+        elif furniture.name in furniture_names:
+            problems.append(f"{where}.name: duplicate furniture name {furniture.name!r}")
+        furniture_names.add(furniture.name)
+        if furniture.kind not in FURNITURE_KINDS:
+            problems.append(f"{where}.kind: unknown kind {furniture.kind!r} (known: {', '.join(FURNITURE_KINDS)})")
+        if not furniture.parts:
+            problems.append(f"{where}.parts: a piece of furniture needs at least one part")
+        part_names: set[str] = set()
+        for j, part in enumerate(furniture.parts):
+            pw = f"{where}.parts[{j}]"
+            if not part.name or part.name in part_names:
+                problems.append(f"{pw}.name: missing or duplicate part name {part.name!r}")
+            part_names.add(part.name)
+            _check_shape(part.shape, f"{pw}.shape", problems)
+            if not (_finite_vector(part.xyz, 3) and _finite_vector(part.rpy, 3)):
+                problems.append(f"{pw}: xyz and rpy must be 3 finite numbers each")
+            elif part.support and (abs(part.rpy[0]) > 1e-6 or abs(part.rpy[1]) > 1e-6):
+                problems.append(f"{pw}.support: a support part must be level (roll = pitch = 0)")
+
+    furniture_ok = len(problems) == problems_before_furniture
+    surfaces = {s.id: s for s in scenario.support_surfaces()} if furniture_ok else {}
+    seen: set[str] = set()
+    for i, obj in enumerate(scenario.objects):
+        where = f"objects[{i}]"
+        if obj.name not in YCB_OBJECTS:
+            problems.append(f"{where}.name: unknown YCB object {obj.name!r} (known: {', '.join(YCB_OBJECTS)})")
+        elif obj.name in seen:
+            problems.append(f"{where}.name: object {obj.name!r} appears twice")
+        seen.add(obj.name)
+        if not (_finite_vector(obj.xyz, 3) and _finite_vector(obj.rpy, 3)):
+            problems.append(f"{where}: xyz and rpy must be 3 finite numbers each")
+            continue
+        if not surfaces:
+            continue
+        surface = surfaces.get(obj.support)
+        if surface is None:
+            problems.append(f"{where}.support: no support surface {obj.support!r} (have: {', '.join(surfaces) or 'none'})")
+            continue
+        if abs(surface.height - obj.support_height) > 0.01:
+            problems.append(f"{where}.support_height: {obj.support_height} but {obj.support!r} is at {surface.height:.3f}")
+        dz = obj.xyz[2] - surface.height
+        if not (SUPPORT_HEIGHT_BAND[0] <= dz <= SUPPORT_HEIGHT_BAND[1]) or not surface.contains_xy(np.array([obj.xyz[:2]]))[0]:
+            problems.append(f"{where}.xyz: {obj.name!r} at {obj.xyz} is not on support {obj.support!r} (top at z = {surface.height:.3f})")
+
+    if not scenario.target:
+        problems.append("target: missing")
+    elif scenario.target not in seen:
+        problems.append(f"target: {scenario.target!r} is not one of the objects ({', '.join(o.name for o in scenario.objects) or 'none'})")
+
+    if room_ok and furniture_ok:
+        _check_start(scenario, problems)
+
+    event_names: set[str] = set()
+    for i, event in enumerate(scenario.dynamic_events):
+        where = f"dynamic_events[{i}]"
+        if not event.name or event.name in event_names:
+            problems.append(f"{where}.name: missing or duplicate event name {event.name!r}")
+        event_names.add(event.name)
+        _check_shape(event.shape, f"{where}.shape", problems)
+        if isinstance(event, MoveAlongPath):
+            if len(event.waypoints) < 2 or not all(_finite_vector(w, 3) for w in event.waypoints):
+                problems.append(f"{where}.waypoints: needs at least 2 finite [x, y, z] points")
+            if not event.speed > 0:
+                problems.append(f"{where}.speed: must be positive, got {event.speed}")
+        else:
+            if not _finite_vector(event.xyz, 3):
+                problems.append(f"{where}.xyz: must be 3 finite numbers")
+        if isinstance(event, AppearAtDistance) and not event.trigger_distance > 0:
+            problems.append(f"{where}.trigger_distance: must be positive")
+        if isinstance(event, AppearAtPhase) and event.phase not in POLICY_PHASES:
+            problems.append(f"{where}.phase: unknown phase {event.phase!r} (known: {', '.join(POLICY_PHASES)})")
+
+    if problems:
+        raise ScenarioError([f"{source}: {p}" for p in problems])
+
+
+def _check_start(scenario: Scenario, problems: list[str]) -> None:
+    start = scenario.robot_start
+    p = np.array([[start.x, start.y]])
+    r = ROBOT_FOOTPRINT_RADIUS
+    poly = scenario.room.polygon()
+    if not points_in_polygon(p, poly)[0]:
+        problems.append(f"robot_start: ({start.x}, {start.y}) is outside the room")
+        return
+    if distance_to_polygon_boundary(p, poly)[0] < r:
+        # Doorway gaps are walls the robot may cross, but not a place to start.
+        problems.append(f"robot_start: footprint (r = {r} m) at ({start.x}, {start.y}) crosses the room's walls")
+    for furniture in scenario.furniture:
+        clearance = footprint_clearance(p, furniture.primitives())[0]
+        if clearance < r:
+            problems.append(
+                f"robot_start: footprint (r = {r} m) at ({start.x}, {start.y}) overlaps furniture {furniture.name!r}"
+                f" ({'centre inside it' if clearance < 0 else f'clearance {clearance:.2f} m'})"
+            )

