@@ -1,0 +1,167 @@
+"""The geometric antipodal grasp sampler and the grasp ranking."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vamg_drake.policy import synthetic_clouds as clouds
+from vamg_drake.policy.grasp_candidates import AntipodalGraspConfig, AntipodalGraspSampler, GraspCandidates
+from vamg_drake.policy.grasp_ranking import (
+    GraspRankingConfig,
+    farthest_pose_sampling,
+    pose_distance,
+    pregrasp_poses,
+    proximity_weighted_score,
+    rank_grasps,
+    select_grasp_goal,
+)
+from vamg_drake.robot.layout import GRIPPER_MAX_OPENING
+
+TABLE_Z = 0.7
+CENTER = np.array([1.0, 0.0, TABLE_Z])
+
+
+def _table() -> np.ndarray:
+    return clouds.table_top_cloud(z=TABLE_Z, center_xy=CENTER[:2], size=0.6)
+
+
+def _objects() -> dict[str, np.ndarray]:
+    return {
+        "can": clouds.can_cloud(center=CENTER, noise=0.001, seed=1),
+        "box": clouds.box_cloud(center=CENTER, yaw=0.4, noise=0.001, seed=2),
+        "mug": clouds.mug_cloud(center=CENTER, noise=0.001, seed=3),
+    }
+
+
+def _assert_valid_frames(g: GraspCandidates) -> None:
+    R = g.X_WG[:, :3, :3]
+    np.testing.assert_allclose(R @ np.swapaxes(R, 1, 2), np.broadcast_to(np.eye(3), R.shape), atol=1e-9)
+    np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["can", "box", "mug"])
+@pytest.mark.parametrize("with_table", [False, True])
+def test_finds_grasps_on_objects(name: str, with_table: bool) -> None:
+    obj = _objects()[name]
+    cloud = np.concatenate([obj, _table()]) if with_table else obj
+    target = obj.mean(axis=0)
+    g = AntipodalGraspSampler().propose(cloud, target, np.random.default_rng(0))
+    assert len(g) > 0, g.failure_reason
+    _assert_valid_frames(g)
+    assert np.all(g.width > 0) and np.all(g.width <= GRIPPER_MAX_OPENING)
+    # Contacts (the grasp-frame origin) lie near the target, inside the object's extent.
+    assert np.all(np.linalg.norm(g.X_WG[:, :3, 3] - target, axis=1) <= 0.10 + 1e-9)
+    lo, hi = obj.min(axis=0) - 0.01, obj.max(axis=0) + 0.01
+    assert np.all((g.X_WG[:, :3, 3] >= lo) & (g.X_WG[:, :3, 3] <= hi))
+    if with_table:
+        # Nothing approaches from below the table top.
+        assert np.all(g.X_WG[:, 2, 0] < 0.5)
+
+
+def test_can_width_matches_diameter() -> None:
+    can = clouds.can_cloud(center=CENTER, radius=0.033, seed=4)
+    g = AntipodalGraspSampler().propose(can, can.mean(axis=0))
+    side = np.abs(g.X_WG[:, 2, 1]) < 0.2  # closing axis horizontal: across the can
+    assert side.any()
+    np.testing.assert_allclose(np.median(g.width[side]), 0.066, atol=0.004)
+
+
+def test_no_grasp_on_wall_patch() -> None:
+    wall = clouds.wall_patch_cloud(center=(2.0, 0.0, 1.0), normal=(-1.0, 0.0, 0.0), noise=0.001, seed=5)
+    g = AntipodalGraspSampler().propose(wall, np.array([2.0, 0.0, 1.0]))
+    assert len(g) == 0
+    assert "antipodal" in g.failure_reason or "clearance" in g.failure_reason
+
+
+def test_object_too_wide_has_no_grasp() -> None:
+    box = clouds.box_cloud(center=CENTER, size=(0.2, 0.25, 0.2), seed=6)
+    g = AntipodalGraspSampler().propose(box, box.mean(axis=0))
+    assert len(g) == 0
+
+
+@pytest.mark.parametrize("n_points", [0, 5])
+def test_empty_or_tiny_cloud_gives_reason(n_points: int) -> None:
+    cloud = clouds.can_cloud(center=CENTER, n=max(n_points, 1))[:n_points]
+    g = AntipodalGraspSampler().propose(cloud, CENTER)
+    assert len(g) == 0
+    assert "too few observed points" in g.failure_reason
+
+
+def test_nan_target_gives_reason() -> None:
+    g = AntipodalGraspSampler().propose(_objects()["can"], np.array([np.nan, 0.0, 0.0]))
+    assert len(g) == 0 and "not finite" in g.failure_reason
+
+
+def test_config_validation_names_field() -> None:
+    with pytest.raises(ValueError, match="friction_coefficient"):
+        AntipodalGraspConfig(friction_coefficient=0.0)
+
+
+# --- ranking ---------------------------------------------------------------
+
+
+def _poses(t: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    X = np.tile(np.eye(4), (len(t), 1, 1))
+    X[:, 0, 0] = X[:, 1, 1] = np.cos(yaw)
+    X[:, 0, 1], X[:, 1, 0] = -np.sin(yaw), np.sin(yaw)
+    X[:, :3, 3] = t
+    return X
+
+
+def test_pose_distance_metric() -> None:
+    X = _poses(np.array([[0, 0, 0], [0.3, 0.4, 0]]), np.array([0.0, np.pi / 2]))
+    np.testing.assert_allclose(pose_distance(X[0], X[1], 0.1), 0.5 + 0.1 * np.pi / 2)
+
+
+def test_fps_starts_at_best_and_spreads() -> None:
+    rng = np.random.default_rng(0)
+    # Two tight clusters and one outlier: FPS picks one of each first.
+    t = np.concatenate([rng.normal(0, 0.002, (10, 3)), rng.normal(1, 0.002, (10, 3)), [[0, 2, 0]]])
+    X = _poses(t, np.zeros(21))
+    score = np.zeros(21)
+    score[3] = 1.0
+    idx = farthest_pose_sampling(X, score, 3)
+    assert idx[0] == 3
+    assert {int(i) // 10 for i in idx} == {0, 1, 2}
+
+
+def test_proximity_score_is_tiebreaker() -> None:
+    s = proximity_weighted_score(np.array([0.8, 0.8, 0.9]), np.array([[1, 0, 0], [0.1, 0, 0], [2, 0, 0]]), np.zeros(3))
+    assert np.argmax(s) == 2 and s[1] > s[0]
+
+
+def test_pregrasp_is_back_along_approach() -> None:
+    X = _poses(np.array([[1.0, 0, 0]]), np.array([np.pi / 2]))
+    P = pregrasp_poses(X, 0.05)
+    np.testing.assert_allclose(P[0, :3, 3], [1.0, -0.05, 0.0], atol=1e-12)
+
+
+def test_rank_and_select_with_capability_ik_and_collision() -> None:
+    t = np.array([[0.5, 0.0, 0.8], [0.6, 0.1, 0.8], [3.0, 0.0, 0.8], [0.55, -0.1, 0.8]])
+    cands = GraspCandidates(_poses(t, np.zeros(4)), np.array([0.9, 0.8, 0.99, 0.7]), np.full(4, 0.05))
+    reachable = lambda X_BG: np.linalg.norm(X_BG[:, :3, 3], axis=1) < 1.5  # noqa: E731
+    order, n_reach = rank_grasps(cands, np.eye(4), np.zeros(3), reachable, GraspRankingConfig())
+    assert n_reach == 3 and 2 not in order.tolist()
+
+    calls = []
+
+    def fake_arm_ik(X_WG: np.ndarray, q_seed: np.ndarray):
+        calls.append(len(X_WG))
+        q = np.tile(np.broadcast_to(q_seed, (len(X_WG), 11))[0], (len(X_WG), 1)).astype(float)
+        q[:, 4:7] = X_WG[:, :3, 3]
+        return q, X_WG[:, 1, 3] > -0.05  # the grasp at y=-0.1 is "unreachable"
+
+    def is_free(q: np.ndarray) -> np.ndarray:
+        return q[:, 5] < 0.05  # configurations reaching y >= 0.05 "collide"
+
+    goal = select_grasp_goal(cands, np.zeros(11), np.eye(4), np.zeros(3), fake_arm_ik, is_free, reachable)
+    assert goal.success, goal.failure_reason
+    assert goal.candidate_index == 0
+    np.testing.assert_allclose(goal.X_WG, cands.X_WG[0])
+    np.testing.assert_allclose(goal.q_pregrasp[4:7], [0.45, 0.0, 0.8])
+
+    none = select_grasp_goal(cands, np.zeros(11), np.eye(4), np.zeros(3), fake_arm_ik, lambda q: np.zeros(len(q), bool), reachable)
+    assert not none.success and "collision" in none.failure_reason
+    empty = select_grasp_goal(GraspCandidates.empty("no points"), np.zeros(11), np.eye(4), np.zeros(3), fake_arm_ik, is_free, None)
+    assert not empty.success and "no points" in empty.failure_reason

@@ -1,0 +1,357 @@
+"""Grasp candidates for the Fetch parallel-jaw gripper from an observed point cloud.
+
+The paper generates candidates with Contact-GraspNet, whose weights are not
+available here. ``AntipodalGraspSampler`` is a geometric replacement: it
+estimates surface normals by local PCA, pairs surface points whose normals lie
+in each other's friction cone along the line joining them (antipodal contacts
+no wider than the gripper's 10 cm opening), spins the approach direction around
+the closing axis, and keeps only the gripper poses whose fingers and palm --
+including their sweep from the pre-grasp pose 5 cm back and the closing sweep
+from fully open -- contain no observed point.
+
+Both contacts must be observed: a flat patch (a wall, a table top) has no
+antipodal pair and yields no grasp, and an object seen from a single side may
+yield none until the Observe phase adds views.
+
+Any other generator (a learned network) plugs in through the
+``GraspCandidateSource`` protocol.
+
+Frames: ``W`` world, ``G`` the grasp frame of ``FetchKinematics.gripper_pose``:
+origin mid finger pads, +x the approach direction, +y the finger-closing axis,
++z = x cross y.
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+from typing import Protocol
+
+import numba
+import numpy as np
+from scipy.spatial import cKDTree
+
+from vamg_drake.robot.layout import GRIPPER_MAX_OPENING
+
+
+@dc.dataclass(frozen=True)
+class GraspCandidates:
+    """A set of 6-DoF grasp poses with scores, or none and the reason why.
+
+    Attributes:
+        X_WG: (K, 4, 4) grasp-frame poses in the world.
+        score: (K,) confidence in [0, 1], higher is better.
+        width: (K,) object width between the contacts [m] (0 when unknown).
+        failure_reason: empty when K > 0, else a human-readable reason.
+    """
+
+    X_WG: np.ndarray
+    score: np.ndarray
+    width: np.ndarray
+    failure_reason: str = ""
+
+    def __len__(self) -> int:
+        return int(self.score.shape[0])
+
+    @staticmethod
+    def empty(reason: str) -> "GraspCandidates":
+        return GraspCandidates(np.zeros((0, 4, 4)), np.zeros(0), np.zeros(0), reason)
+
+    def subset(self, index: np.ndarray) -> "GraspCandidates":
+        index = np.asarray(index, dtype=int)
+        return GraspCandidates(self.X_WG[index], self.score[index], self.width[index], self.failure_reason)
+
+
+class GraspCandidateSource(Protocol):
+    """Anything that proposes grasps from a world-frame cloud around a target.
+
+    A learned network (Contact-GraspNet and the like) implements this too.
+    """
+
+    def propose(
+        self,
+        p_WS: np.ndarray,
+        p_WT: np.ndarray,
+        rng: np.random.Generator | None = None,
+    ) -> GraspCandidates:
+        """Returns grasp candidates whose contacts lie near target ``p_WT``.
+
+        Args:
+            p_WS: (N, 3) observed points in the world (may include the support
+                surface and clutter: they are used as obstacles).
+            p_WT: (3,) the target point.
+            rng: random generator (a fixed default when None).
+        """
+        ...
+
+
+@dc.dataclass
+class GripperGeometry:
+    """Boxes of the Fetch parallel-jaw gripper in the grasp frame G [m].
+
+    Defaults follow the collision boxes of `models/fetch/fetch.urdf` (G at the
+    middle of the finger pads, pads 6 cm long, palm box 12.2 x 12.6 x 8 cm).
+    """
+
+    max_opening: float = GRIPPER_MAX_OPENING
+    #: x of the fingertips in G.
+    fingertip_x: float = 0.031
+    #: Length of the finger pads along x (from the fingertip back to the palm).
+    finger_length: float = 0.06
+    #: Finger thickness along the closing axis y.
+    finger_thickness: float = 0.014
+    #: Finger extent along z.
+    finger_width: float = 0.026
+    #: Palm depth along x behind the fingers.
+    palm_depth: float = 0.122
+    #: Palm extent along z.
+    palm_height: float = 0.08
+
+
+@dc.dataclass
+class AntipodalGraspConfig:
+    """Parameters of the geometric antipodal grasp sampler."""
+
+    gripper: GripperGeometry = dc.field(default_factory=GripperGeometry)
+    #: Candidates' contact midpoints lie within this distance of the target (paper: 10 cm).
+    grasp_radius: float = 0.10
+    #: Points within this distance of the target are used as obstacles.
+    crop_radius: float = 0.30
+    #: Voxel size of the downsampled cloud [m].
+    voxel_size: float = 0.004
+    #: Neighbours used to estimate each normal.
+    normal_neighbours: int = 16
+    #: Coulomb friction coefficient; the cone half-angle is atan(mu).
+    friction_coefficient: float = 0.4
+    #: Perpendicular tolerance of the search for the opposite contact [m].
+    line_tolerance: float = 0.004
+    #: Thinnest graspable object [m]: a single surface has no thickness.
+    min_width: float = 0.004
+    #: Clearance between an open finger and any point other than the object [m].
+    margin: float = 0.004
+    #: How far the gripper travels along the approach before the grasp (pre-grasp offset).
+    approach_distance: float = 0.05
+    #: Contact midpoint position along x of G (0: the middle of the pads).
+    contact_x: float = 0.0
+    #: Number of seed contact points.
+    num_seeds: int = 250
+    #: Approach directions tried around each closing axis.
+    num_approaches: int = 12
+    #: Fewest points within ``grasp_radius`` of the target to attempt sampling.
+    min_points: int = 20
+    #: Fewest object points between the fingers.
+    min_support: int = 4
+    #: Most candidates returned (highest scores first).
+    max_candidates: int = 400
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.friction_coefficient:
+            raise ValueError(f"AntipodalGraspConfig.friction_coefficient must be > 0, got {self.friction_coefficient}")
+        if not 0.0 < self.grasp_radius <= self.crop_radius:
+            raise ValueError(
+                f"AntipodalGraspConfig: need 0 < grasp_radius <= crop_radius, got {self.grasp_radius}, {self.crop_radius}"
+            )
+        if self.num_seeds < 1 or self.num_approaches < 1:
+            raise ValueError("AntipodalGraspConfig.num_seeds and num_approaches must be >= 1")
+
+
+def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
+    """Keeps one point per ``voxel``-sized cell (the first in input order)."""
+    if points.shape[0] == 0 or voxel <= 0:
+        return points
+    keys = np.floor(points / voxel).astype(np.int64)
+    _, index = np.unique(keys, axis=0, return_index=True)
+    return points[np.sort(index)]
+
+
+def estimate_normals(points: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Unoriented unit normals and surface variation by PCA of the k nearest neighbours.
+
+    Returns:
+        normals (N, 3) and curvature (N,) = smallest eigenvalue / trace.
+    """
+    k = int(min(k, points.shape[0]))
+    _, nbr = cKDTree(points).query(points, k=k)
+    local = points[nbr] - points[nbr].mean(axis=1, keepdims=True)
+    cov = np.einsum("nki,nkj->nij", local, local) / k
+    eigval, eigvec = np.linalg.eigh(cov)
+    normals = eigvec[:, :, 0]
+    curvature = eigval[:, 0] / np.maximum(eigval.sum(axis=1), 1e-12)
+    return normals, curvature
+
+
+def _frames_from_axes(x_axis: np.ndarray, y_axis: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    X = np.zeros((x_axis.shape[0], 4, 4))
+    X[:, :3, 0] = x_axis
+    X[:, :3, 1] = y_axis
+    X[:, :3, 2] = np.cross(x_axis, y_axis)
+    X[:, :3, 3] = origin
+    X[:, 3, 3] = 1.0
+    return X
+
+
+class AntipodalGraspSampler:
+    """Geometric antipodal grasp sampler (a ``GraspCandidateSource``)."""
+
+    def __init__(self, config: AntipodalGraspConfig | None = None) -> None:
+        self.config = config or AntipodalGraspConfig()
+
+    def propose(
+        self,
+        p_WS: np.ndarray,
+        p_WT: np.ndarray,
+        rng: np.random.Generator | None = None,
+    ) -> GraspCandidates:
+        cfg = self.config
+        rng = rng if rng is not None else np.random.default_rng(0)
+        p_WS = np.asarray(p_WS, dtype=float).reshape(-1, 3)
+        p_WT = np.asarray(p_WT, dtype=float).reshape(3)
+        if not np.all(np.isfinite(p_WT)):
+            return GraspCandidates.empty(f"target point is not finite: {p_WT}")
+        p_WS = p_WS[np.all(np.isfinite(p_WS), axis=1)]
+        crop = p_WS[np.linalg.norm(p_WS - p_WT, axis=1) <= cfg.crop_radius]
+        crop = voxel_downsample(crop, cfg.voxel_size)
+        near = np.linalg.norm(crop - p_WT, axis=1) <= cfg.grasp_radius
+        if np.count_nonzero(near) < cfg.min_points:
+            return GraspCandidates.empty(
+                f"too few observed points near the target: {np.count_nonzero(near)} within "
+                f"{cfg.grasp_radius} m (need {cfg.min_points})"
+            )
+        normals, _ = estimate_normals(crop, cfg.normal_neighbours)
+        pairs = self._antipodal_pairs(crop, normals, np.flatnonzero(near), rng)
+        if pairs.shape[0] == 0:
+            return GraspCandidates.empty("no antipodal contact pair within the gripper opening near the target")
+        i, j = pairs[:, 0], pairs[:, 1]
+        p1, p2 = crop[i], crop[j]
+        width = np.linalg.norm(p2 - p1, axis=1)
+        y_axis = (p2 - p1) / width[:, None]
+        cos_cone = np.cos(np.arctan(cfg.friction_coefficient))
+        alignment = 0.5 * (np.abs(np.sum(normals[i] * y_axis, 1)) + np.abs(np.sum(normals[j] * y_axis, 1)))
+        quality = np.clip((alignment - cos_cone) / (1.0 - cos_cone), 0.0, 1.0)
+        center = 0.5 * (p1 + p2)
+
+        # Approach directions: spin a unit vector perpendicular to y around y.
+        helper = np.where(np.abs(y_axis[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
+        u = np.cross(y_axis, helper)
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        v = np.cross(y_axis, u)
+        angles = (np.arange(cfg.num_approaches) + rng.uniform()) * (2 * np.pi / cfg.num_approaches)
+        ca, sa = np.cos(angles), np.sin(angles)
+        x_axis = (ca[None, :, None] * u[:, None, :] + sa[None, :, None] * v[:, None, :]).reshape(-1, 3)
+        rep = lambda a: np.repeat(a, cfg.num_approaches, axis=0)  # noqa: E731
+        y_rep, c_rep, w_rep, q_rep = rep(y_axis), rep(center), rep(width), rep(quality)
+        origin = c_rep - cfg.contact_x * x_axis
+        X_WG = _frames_from_axes(x_axis, y_rep, origin)
+
+        ok = self._clearance_ok(crop, X_WG, w_rep)
+        if not np.any(ok):
+            return GraspCandidates.empty("every antipodal grasp collides with the observed cloud (no finger clearance)")
+        X_WG, w_rep, q_rep, c_rep = X_WG[ok], w_rep[ok], q_rep[ok], c_rep[ok]
+        proximity = 1.0 - np.clip(np.linalg.norm(c_rep - p_WT, axis=1) / cfg.grasp_radius, 0.0, 1.0)
+        score = 0.7 * q_rep + 0.3 * proximity
+        order = np.argsort(-score, kind="stable")[: cfg.max_candidates]
+        return GraspCandidates(X_WG[order], score[order], w_rep[order])
+
+    def _antipodal_pairs(
+        self, points: np.ndarray, normals: np.ndarray, seeds_pool: np.ndarray, rng: np.random.Generator
+    ) -> np.ndarray:
+        """Index pairs (i, j) of antipodal contacts, i among the seeds."""
+        cfg = self.config
+        cos_cone = np.cos(np.arctan(cfg.friction_coefficient))
+        max_width = cfg.gripper.max_opening - 2.0 * cfg.margin
+        seeds = rng.choice(seeds_pool, size=min(cfg.num_seeds, seeds_pool.size), replace=False)
+        pairs: list[np.ndarray] = []
+        for chunk in np.array_split(seeds, max(1, seeds.size // 64)):
+            offset = points[None, :, :] - points[chunk, None, :]  # (S, N, 3)
+            dist = np.linalg.norm(offset, axis=2)
+            along = np.einsum("snk,sk->sn", offset, normals[chunk])
+            perp = np.sqrt(np.maximum(dist**2 - along**2, 0.0))
+            with np.errstate(invalid="ignore", divide="ignore"):
+                direction = offset / dist[:, :, None]
+            cos_j = np.abs(np.einsum("snk,nk->sn", direction, normals))
+            valid = (
+                (perp <= cfg.line_tolerance)
+                & (dist >= cfg.min_width)
+                & (dist <= max_width)
+                & (np.abs(along) >= cos_cone * dist)
+                & (cos_j >= cos_cone)
+            )
+            s, n = np.nonzero(valid)
+            if s.size == 0:
+                continue
+            # One pair per seed and 1 cm width bin: the other contacts on the same
+            # line are the same surface sampled twice.
+            width_bin = np.floor(dist[s, n] / 0.01).astype(np.int64)
+            _, first = np.unique(np.stack([s, width_bin], 1), axis=0, return_index=True)
+            pairs.append(np.stack([chunk[s[first]], n[first]], axis=1))
+        if not pairs:
+            return np.zeros((0, 2), dtype=int)
+        return np.concatenate(pairs)
+
+    def _clearance_ok(self, points: np.ndarray, X_WG: np.ndarray, width: np.ndarray) -> np.ndarray:
+        """True where the fingers' closing sweep and the palm's approach sweep are point-free."""
+        cfg = self.config
+        g = cfg.gripper
+        return _clearance_kernel(
+            np.ascontiguousarray(points),
+            np.ascontiguousarray(X_WG),
+            np.ascontiguousarray(width),
+            cfg.margin,
+            0.5 * g.max_opening,
+            g.fingertip_x,
+            g.finger_length,
+            g.finger_thickness,
+            g.finger_width,
+            g.palm_depth + cfg.approach_distance,
+            g.palm_height,
+            cfg.min_support,
+        )
+
+
+@numba.njit(cache=True, parallel=True)
+def _clearance_kernel(
+    points: np.ndarray,
+    X_WG: np.ndarray,
+    width: np.ndarray,
+    margin: float,
+    half_open: float,
+    fingertip_x: float,
+    finger_length: float,
+    finger_thickness: float,
+    finger_width: float,
+    palm_sweep: float,
+    palm_height: float,
+    min_support: int,
+) -> np.ndarray:
+    """Per candidate: no point in the closing sweep of the pads or the approach sweep
+    of the palm and open fingers, and at least ``min_support`` points between the pads."""
+    k_count = X_WG.shape[0]
+    ok = np.zeros(k_count, dtype=np.bool_)
+    reach2 = (abs(fingertip_x) + finger_length + palm_sweep) ** 2 + (half_open + finger_thickness) ** 2 + palm_height**2
+    for k in numba.prange(k_count):
+        inner = 0.5 * width[k] + margin
+        support = 0
+        free = True
+        for n in range(points.shape[0]):
+            dx = points[n, 0] - X_WG[k, 0, 3]
+            dy = points[n, 1] - X_WG[k, 1, 3]
+            dz = points[n, 2] - X_WG[k, 2, 3]
+            if dx * dx + dy * dy + dz * dz > reach2:
+                continue
+            # x relative to the fingertips.
+            x = X_WG[k, 0, 0] * dx + X_WG[k, 1, 0] * dy + X_WG[k, 2, 0] * dz - fingertip_x
+            if x > 0.0 or x < -finger_length - palm_sweep:
+                continue
+            y = abs(X_WG[k, 0, 1] * dx + X_WG[k, 1, 1] * dy + X_WG[k, 2, 1] * dz)
+            z = abs(X_WG[k, 0, 2] * dx + X_WG[k, 1, 2] * dy + X_WG[k, 2, 2] * dz)
+            if x >= -finger_length:
+                if z <= 0.5 * finger_width:
+                    if y < inner:
+                        support += 1
+                    elif y <= half_open + finger_thickness:
+                        free = False
+                        break
+            elif y <= half_open + finger_thickness and z <= 0.5 * palm_height:
+                free = False
+                break
+        ok[k] = free and support >= min_support
+    return ok

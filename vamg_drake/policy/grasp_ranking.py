@@ -1,0 +1,200 @@
+"""Grasp goal selection: capability filter, FPS diversity, proximity ranking, validation.
+
+The paper's Algorithm "Grasp Goal Sampling" (appendix): keep the candidates the
+capability map calls reachable from the current base, pick ``N_diverse = 20`` by
+farthest-point sampling in SE(3) with
+``d(T1, T2) = ||t1 - t2|| + 0.1 * angle(R1, R2)`` starting from the best score,
+sort them by ``score - 0.01 * ||t - t_ee,current||``, and return the first whose
+arm-only IK (base and torso fixed) succeeds and whose configuration is
+collision-free. Each candidate's pre-grasp (5 cm back along -x of G) is solved
+and checked too, since the robot moves there first.
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+from typing import Callable
+
+import numpy as np
+
+from vamg_drake.policy.grasp_candidates import GraspCandidates
+
+#: Batched IK with base and torso fixed at the seed's:
+#: (X_WG (K,4,4), q_seed (11,) or (K,11)) -> (q (K,11), ok (K,)).
+ArmIkFn = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+#: Batched collision check: q (K,11) -> free (K,) bool.
+IsFreeFn = Callable[[np.ndarray], np.ndarray]
+#: Capability query: X_BG (K,4,4) end-effector poses in the base frame -> reachable (K,) bool.
+ReachableFn = Callable[[np.ndarray], np.ndarray]
+
+
+@dc.dataclass
+class GraspRankingConfig:
+    """Parameters of grasp goal selection (paper appendix values)."""
+
+    n_diverse: int = 20
+    #: lambda of the SE(3) distance (metres per radian).
+    rotation_weight: float = 0.1
+    #: lambda_d of the proximity-weighted score.
+    proximity_weight: float = 0.01
+    #: Pre-grasp offset along -x of G [m].
+    pregrasp_offset: float = 0.05
+    #: Check the grasp configuration itself for collision (the fingers touch the
+    #: target, so the map passed to ``is_free`` must exclude the target's points).
+    check_grasp_collision: bool = False
+
+    def __post_init__(self) -> None:
+        if self.n_diverse < 1:
+            raise ValueError(f"GraspRankingConfig.n_diverse must be >= 1, got {self.n_diverse}")
+
+
+@dc.dataclass(frozen=True)
+class GraspGoal:
+    """The outcome of grasp goal selection.
+
+    Attributes:
+        success: True when a valid grasp was found.
+        q_grasp: (11,) configuration at the grasp pose (NaN on failure).
+        q_pregrasp: (11,) configuration at the pre-grasp pose (NaN on failure).
+        X_WG: (4, 4) the chosen grasp pose (NaN on failure).
+        candidate_index: index into the input candidates (-1 on failure).
+        num_candidates / num_reachable / num_tried: the funnel, for logs.
+        failure_reason: empty on success.
+    """
+
+    success: bool
+    q_grasp: np.ndarray
+    q_pregrasp: np.ndarray
+    X_WG: np.ndarray
+    candidate_index: int
+    num_candidates: int
+    num_reachable: int
+    num_tried: int
+    failure_reason: str = ""
+
+
+def rotation_angle(R1: np.ndarray, R2: np.ndarray) -> np.ndarray:
+    """Geodesic angle between rotations, broadcasting over leading axes."""
+    trace = np.einsum("...ij,...ij->...", R1, R2)  # tr(R1^T R2)
+    return np.arccos(np.clip(0.5 * (trace - 1.0), -1.0, 1.0))
+
+
+def pose_distance(X1: np.ndarray, X2: np.ndarray, rotation_weight: float = 0.1) -> np.ndarray:
+    """``||t1 - t2|| + rotation_weight * angle(R1, R2)``, broadcasting over leading axes."""
+    translation = np.linalg.norm(X1[..., :3, 3] - X2[..., :3, 3], axis=-1)
+    return translation + rotation_weight * rotation_angle(X1[..., :3, :3], X2[..., :3, :3])
+
+
+def farthest_pose_sampling(
+    X: np.ndarray, score: np.ndarray, n: int, rotation_weight: float = 0.1
+) -> np.ndarray:
+    """Indices of up to ``n`` diverse poses: the best-scored first, then each next
+    maximizes its minimum ``pose_distance`` to those already chosen."""
+    k = X.shape[0]
+    if k == 0:
+        return np.zeros(0, dtype=int)
+    chosen = [int(np.argmax(score))]
+    min_dist = pose_distance(X, X[chosen[0]][None], rotation_weight)
+    for _ in range(min(n, k) - 1):
+        nxt = int(np.argmax(min_dist))
+        if min_dist[nxt] <= 0.0:
+            break
+        chosen.append(nxt)
+        min_dist = np.minimum(min_dist, pose_distance(X, X[nxt][None], rotation_weight))
+    return np.asarray(chosen, dtype=int)
+
+
+def proximity_weighted_score(
+    score: np.ndarray, p_WG: np.ndarray, p_WEE_current: np.ndarray, weight: float = 0.01
+) -> np.ndarray:
+    """``s_hat = s - weight * ||t_G - t_ee,current||``."""
+    return score - weight * np.linalg.norm(p_WG - p_WEE_current, axis=-1)
+
+
+def pregrasp_poses(X_WG: np.ndarray, offset: float) -> np.ndarray:
+    """Grasp poses moved ``offset`` back along their approach axis (-x of G)."""
+    X = np.array(X_WG, copy=True)
+    X[..., :3, 3] -= offset * X[..., :3, 0]
+    return X
+
+
+def rank_grasps(
+    candidates: GraspCandidates,
+    X_WB: np.ndarray,
+    p_WEE_current: np.ndarray,
+    reachable: ReachableFn | None,
+    config: GraspRankingConfig,
+) -> tuple[np.ndarray, int]:
+    """Capability filter, FPS diversity and proximity ranking.
+
+    Args:
+        candidates: the proposed grasps.
+        X_WB: (4, 4) the current base pose (the capability map's frame).
+        p_WEE_current: (3,) current end-effector position.
+        reachable: capability query in the base frame, or None to skip the filter.
+        config: ranking parameters.
+
+    Returns:
+        (indices into ``candidates`` in the order to try, number passing the
+        capability filter).
+    """
+    if len(candidates) == 0:
+        return np.zeros(0, dtype=int), 0
+    keep = np.arange(len(candidates))
+    if reachable is not None:
+        X_BG = np.linalg.inv(X_WB)[None] @ candidates.X_WG
+        keep = keep[np.asarray(reachable(X_BG), dtype=bool)]
+    if keep.size == 0:
+        return keep, 0
+    diverse = keep[
+        farthest_pose_sampling(candidates.X_WG[keep], candidates.score[keep], config.n_diverse, config.rotation_weight)
+    ]
+    s_hat = proximity_weighted_score(
+        candidates.score[diverse], candidates.X_WG[diverse, :3, 3], p_WEE_current, config.proximity_weight
+    )
+    return diverse[np.argsort(-s_hat, kind="stable")], int(keep.size)
+
+
+def select_grasp_goal(
+    candidates: GraspCandidates,
+    q_current: np.ndarray,
+    X_WB: np.ndarray,
+    p_WEE_current: np.ndarray,
+    solve_arm_ik: ArmIkFn,
+    is_free: IsFreeFn,
+    reachable: ReachableFn | None,
+    config: GraspRankingConfig | None = None,
+) -> GraspGoal:
+    """The paper's grasp goal sampling: the first IK- and collision-valid ranked grasp."""
+    config = config or GraspRankingConfig()
+    nan_q = np.full(q_current.shape, np.nan)
+    fail = lambda reason, n_reach=0, n_tried=0: GraspGoal(  # noqa: E731
+        False, nan_q, nan_q, np.full((4, 4), np.nan), -1, len(candidates), n_reach, n_tried, reason
+    )
+    if len(candidates) == 0:
+        return fail(f"no grasp candidates ({candidates.failure_reason or 'empty'})")
+    order, n_reachable = rank_grasps(candidates, X_WB, p_WEE_current, reachable, config)
+    if order.size == 0:
+        return fail("no grasp candidate is reachable from the current base (capability map)")
+    X_grasp = candidates.X_WG[order]
+    X_pre = pregrasp_poses(X_grasp, config.pregrasp_offset)
+    # One batched IK call for the pre-grasps; each grasp is then seeded from its pre-grasp.
+    q_pre, ok_pre = solve_arm_ik(X_pre, q_current)
+    q_grasp = np.tile(np.asarray(q_current, dtype=float), (order.size, 1))
+    ok_grasp = np.zeros(order.size, dtype=bool)
+    if np.any(ok_pre):
+        q_grasp[ok_pre], ok_grasp[ok_pre] = solve_arm_ik(X_grasp[ok_pre], q_pre[ok_pre])
+    valid = ok_pre & ok_grasp
+    if not np.any(valid):
+        return fail("IK failed for every ranked grasp (base and torso fixed)", n_reachable, order.size)
+    free = np.zeros(order.size, dtype=bool)
+    free[valid] = np.asarray(is_free(q_pre[valid]), dtype=bool)
+    if config.check_grasp_collision:
+        free[valid] &= np.asarray(is_free(q_grasp[valid]), dtype=bool)
+    winners = np.flatnonzero(valid & free)
+    if winners.size == 0:
+        return fail("every IK-valid ranked grasp is in collision with the map", n_reachable, order.size)
+    i = int(winners[0])
+    return GraspGoal(
+        True, q_grasp[i], q_pre[i], X_grasp[i], int(order[i]), len(candidates), n_reachable, i + 1
+    )
