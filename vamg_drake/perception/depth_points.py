@@ -50,7 +50,7 @@ def validate_pose(X_WC: np.ndarray, name: str = "X_WC") -> np.ndarray:
     if not np.all(np.isfinite(X)):
         raise ValueError(f"{name} contains NaN or inf")
     R = X[:3, :3]
-    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or not np.allclose(X[3], [0, 0, 0, 1]):
+    if np.abs(R.T @ R - np.eye(3)).max() > 1e-6 or np.abs(X[3] - (0.0, 0.0, 0.0, 1.0)).max() > 1e-12:
         raise ValueError(f"{name} is not a rigid transform (rotation not orthonormal or bad last row)")
     return X
 
@@ -80,7 +80,7 @@ class DepthBackProjector:
     def points_W(self, depth: np.ndarray, X_WC: np.ndarray) -> np.ndarray:
         """World points p_WP (M, 3) of the valid pixels of `depth` seen from X_WC."""
         d = self.check_depth(depth)
-        X = validate_pose(X_WC)
+        X = np.ascontiguousarray(validate_pose(X_WC))
         c = self.config
         return _back_project(
             d, self._ray_x, self._ray_y, X, float(c.depth_min), float(c.depth_max), float(c.crop_radius)

@@ -141,8 +141,11 @@ class PointMap:
         self.config = config or RayCastMapConfig()
         self.intrinsics = intrinsics
         self._projector = DepthBackProjector(intrinsics, self.config.depth)
-        self._points = np.empty((0, 3))
-        self._keys = np.empty(0, dtype=np.int64)
+        # Points live in the first `_n` rows of capacity-doubling buffers; the
+        # open-addressing table maps voxel key -> row.
+        self._buf_points = np.empty((1024, 3))
+        self._buf_keys = np.empty(1024, dtype=np.int64)
+        self._n = 0
         self._table_keys = np.full(1024, _EMPTY, dtype=np.int64)
         self._table_index = np.full(1024, -1, dtype=np.int64)
         self.revision = 0
@@ -151,11 +154,22 @@ class PointMap:
     # ---- read access -------------------------------------------------------------
     @property
     def num_points(self) -> int:
-        return int(self._points.shape[0])
+        return self._n
+
+    @property
+    def _points(self) -> np.ndarray:
+        return self._buf_points[: self._n]
+
+    @property
+    def _keys(self) -> np.ndarray:
+        return self._buf_keys[: self._n]
 
     @property
     def points(self) -> np.ndarray:
-        """(n, 3) world points (a read-only view; copy before keeping it)."""
+        """(n, 3) world points (a read-only view, valid until the next update; copy to keep).
+
+        Points added by the last update are the last `MapUpdateStats.num_added` rows.
+        """
         view = self._points.view()
         view.flags.writeable = False
         return view
@@ -202,7 +216,8 @@ class PointMap:
     # ---- updates -----------------------------------------------------------------
     def clear(self) -> None:
         """Forgets every point."""
-        self._set_points(np.empty((0, 3)), np.empty(0, dtype=np.int64))
+        self._n = 0
+        self._table_keys[:] = _EMPTY
         self.revision += 1
 
     def add_points(self, p_W: np.ndarray) -> int:
@@ -274,9 +289,12 @@ class PointMap:
                 self._points, X_CW, z_meas, i.fx, i.fy, i.cx, i.cy,
                 float(c.carve_tolerance), float(c.depth.depth_min), float(c.depth.depth_max),
             )
-            n_carved = int(keep.size - keep.sum())
+            removed = np.flatnonzero(~keep)
+            n_carved = int(removed.size)
             if n_carved:
-                self._set_points(self._points[keep], self._keys[keep])
+                self._n = _remove_rows(
+                    self._table_keys, self._table_index, self._buf_points, self._buf_keys, self._n, removed
+                )
 
         # 5. Voxel merge.
         n_before = self.num_points
@@ -290,33 +308,28 @@ class PointMap:
         )
 
     # ---- internals ---------------------------------------------------------------
-    def _set_points(self, points: np.ndarray, keys: np.ndarray) -> None:
-        self._points = np.ascontiguousarray(points)
-        self._keys = np.ascontiguousarray(keys)
-        cap = _table_capacity(self._points.shape[0])
-        self._table_keys = np.full(cap, _EMPTY, dtype=np.int64)
-        self._table_index = np.full(cap, -1, dtype=np.int64)
-        _table_insert_all(self._table_keys, self._table_index, self._keys)
-
     def _merge(self, p_W: np.ndarray) -> None:
         if p_W.shape[0] == 0:
             return
         keys = _encode_points(p_W, 1.0 / self.config.voxel_size)
-        room = self.config.max_points - self.num_points
-        n_total = self.num_points + min(p_W.shape[0], max(room, 0))
+        room = max(self.config.max_points - self._n, 0)
+        n_total = self._n + min(p_W.shape[0], room)
+        if n_total > self._buf_points.shape[0]:
+            cap = self._buf_points.shape[0]
+            while cap < n_total:
+                cap *= 2
+            cap = min(cap, self.config.max_points)
+            points, keys_buf = np.empty((cap, 3)), np.empty(cap, dtype=np.int64)
+            points[: self._n], keys_buf[: self._n] = self._points, self._keys
+            self._buf_points, self._buf_keys = points, keys_buf
         if _table_capacity(n_total) > self._table_keys.shape[0]:
             cap = _table_capacity(n_total)
             self._table_keys = np.full(cap, _EMPTY, dtype=np.int64)
             self._table_index = np.full(cap, -1, dtype=np.int64)
             _table_insert_all(self._table_keys, self._table_index, self._keys)
-        points = np.empty((n_total, 3))
-        all_keys = np.empty(n_total, dtype=np.int64)
-        n0 = self.num_points
-        points[:n0] = self._points
-        all_keys[:n0] = self._keys
-        n, dropped = _merge_new(self._table_keys, self._table_index, points, all_keys, n0, p_W, keys)
-        self._points = points[:n]
-        self._keys = all_keys[:n]
+        self._n, dropped = _merge_new(
+            self._table_keys, self._table_index, self._buf_points, self._buf_keys, self._n, n_total, p_W, keys
+        )
         if dropped and not self._warned_full:
             _log.warning(
                 "RayCastMap: max_points=%d reached; %d new points dropped (further drops not logged)",
@@ -345,35 +358,36 @@ def _table_capacity(n: int) -> int:
 
 
 def _carving_depth(depth: np.ndarray, footprint: int, carve_no_return: bool) -> np.ndarray:
-    """Per-pixel depth used for carving: unknown -> 0 (carves nothing), window minimum."""
-    z = depth.astype(np.float64)
-    unknown = ~(z > 0.0)  # NaN, 0, negatives
-    z[unknown] = 0.0
-    if not carve_no_return:
-        z[np.isposinf(z)] = 0.0
-    if footprint > 0:
-        z = _min_filter(z, footprint)
-    return z
+    """Per-pixel depth used for carving: unknown (NaN, <= 0) -> 0 (carves nothing), window minimum."""
+    return _carving_depth_kernel(depth, footprint, carve_no_return)
 
 
 @numba.njit(cache=True)
-def _min_filter(z, r):
-    h, w = z.shape
-    tmp = np.empty_like(z)
-    out = np.empty_like(z)
+def _carving_depth_kernel(depth, r, carve_no_return):
+    h, w = depth.shape
+    z = np.empty((h, w))
     for v in range(h):
         for u in range(w):
-            m = np.inf
+            d = depth[v, u]
+            if not d > 0.0 or (not carve_no_return and d == np.inf):
+                z[v, u] = 0.0
+            else:
+                z[v, u] = d
+    if r == 0:
+        return z
+    tmp = np.empty((h, w))
+    for v in range(h):
+        for u in range(w):
+            m = z[v, u]
             for k in range(max(0, u - r), min(w, u + r + 1)):
-                if z[v, k] < m:
-                    m = z[v, k]
+                m = min(m, z[v, k])
             tmp[v, u] = m
+    out = np.empty((h, w))
     for v in range(h):
         for u in range(w):
-            m = np.inf
+            m = tmp[v, u]
             for k in range(max(0, v - r), min(h, v + r + 1)):
-                if tmp[k, u] < m:
-                    m = tmp[k, u]
+                m = min(m, tmp[k, u])
             out[v, u] = m
     return out
 
@@ -485,10 +499,9 @@ def _lookup_many(table_keys, table_index, keys):
 
 
 @numba.njit(cache=True)
-def _merge_new(table_keys, table_index, points, all_keys, n, new_points, new_keys):
-    """Appends each new point whose voxel is empty; returns (count, dropped for lack of room)."""
+def _merge_new(table_keys, table_index, points, all_keys, n, cap, new_points, new_keys):
+    """Appends each new point whose voxel is empty (up to `cap` rows); returns (count, dropped)."""
     mask = table_keys.shape[0] - 1
-    cap = points.shape[0]
     dropped = 0
     for i in range(new_keys.shape[0]):
         key = new_keys[i]
@@ -512,3 +525,57 @@ def _merge_new(table_keys, table_index, points, all_keys, n, new_points, new_key
         all_keys[n] = key
         n += 1
     return n, dropped
+
+
+@numba.njit(cache=True)
+def _table_delete(table_keys, table_index, key):
+    """Removes `key` (backward-shift deletion keeps linear probing tombstone-free)."""
+    mask = table_keys.shape[0] - 1
+    s = _slot(key, mask)
+    while table_keys[s] != key:
+        if table_keys[s] == -1:
+            return
+        s = (s + 1) & mask
+    j = s
+    while True:
+        j = (j + 1) & mask
+        if table_keys[j] == -1:
+            break
+        home = _slot(table_keys[j], mask)
+        # Leave entry j where it is if its home lies cyclically in (s, j].
+        if s <= j:
+            if s < home <= j:
+                continue
+        elif home > s or home <= j:
+            continue
+        table_keys[s] = table_keys[j]
+        table_index[s] = table_index[j]
+        s = j
+    table_keys[s] = -1
+    table_index[s] = -1
+
+
+@numba.njit(cache=True)
+def _set_index(table_keys, table_index, key, index):
+    mask = table_keys.shape[0] - 1
+    s = _slot(key, mask)
+    while table_keys[s] != key:
+        s = (s + 1) & mask
+    table_index[s] = index
+
+
+@numba.njit(cache=True)
+def _remove_rows(table_keys, table_index, points, keys, n, removed):
+    """Deletes rows `removed` (ascending) by moving the last rows into the holes; returns the new count."""
+    for r in range(removed.shape[0] - 1, -1, -1):
+        row = removed[r]
+        _table_delete(table_keys, table_index, keys[row])
+        last = n - 1
+        if row != last:
+            points[row, 0] = points[last, 0]
+            points[row, 1] = points[last, 1]
+            points[row, 2] = points[last, 2]
+            keys[row] = keys[last]
+            _set_index(table_keys, table_index, keys[row], row)
+        n -= 1
+    return n
