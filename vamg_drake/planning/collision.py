@@ -1,0 +1,727 @@
+"""Batched, conservative collision checking of whole-body configurations.
+
+The Fetch is a set of spheres (`vamg_drake.robot.spheres`) that cover its
+collision geometry. A configuration is *free* when every sphere is free of the
+environment, no two spheres of a self-collision pair overlap, and every joint
+is inside its limits. The check is one Numba kernel over a batch of
+configurations (forward kinematics fused with the sphere tests, early exit).
+
+Environment (`CollisionEnvironment`): any union of
+  * a Euclidean distance field on a voxel grid, built from map points (N, 3)
+    or from a boolean occupancy grid (the map's 0.03 m voxels), and
+  * exact world primitives (boxes, cylinders) for ground truth.
+
+Conservativeness of the distance field (the bound `DistanceField.margin`):
+every obstacle point p lies in an occupied cell whose centre v is within
+(sqrt(3)/2) h of p; a query centre c is looked up at its nearest cell centre
+g, within (sqrt(3)/2) h of c; the field stores D(g) = min_v |g - v| exactly
+(scipy's exact EDT). By the triangle inequality
+    |c - p| >= |g - v| - |c - g| - |p - v| >= D(g) - sqrt(3) h,
+so a sphere (c, r) is certainly free when D(g) - sqrt(3) h > r. Cells outside
+the grid are free: the grid is padded by more than the largest sphere radius
+plus the bound around every obstacle cell.
+
+Motion checks: configurations along a motion are checked at a spacing where no
+sphere centre moves more than `motion_resolution` (a rigorous per-joint lever
+bound, `CollisionChecker.sphere_displacement_bound`), and every sphere is
+inflated by half that spacing, so the straight-line motion between two free
+checked states is free as well.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numba
+import numpy as np
+from scipy import ndimage
+
+from vamg_drake.robot import layout
+
+SQRT3 = math.sqrt(3.0)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class DistanceField:
+    """Distances [m] from voxel centres to the nearest occupied voxel centre.
+
+    Attributes:
+        dist: (nx, ny, nz) float32 distance per cell.
+        origin: (3,) world position of the centre of cell (0, 0, 0).
+        resolution: cell size h [m].
+        margin: the conservative discretization bound sqrt(3) h.
+        occupancy: (nx, ny, nz) bool occupied cells.
+    """
+
+    dist: np.ndarray
+    origin: np.ndarray
+    resolution: float
+    margin: float
+    occupancy: np.ndarray
+
+    @property
+    def num_occupied(self) -> int:
+        return int(self.occupancy.sum())
+
+    @staticmethod
+    def from_occupancy(
+        occupied: np.ndarray, origin: np.ndarray, resolution: float, pad: float = 0.5
+    ) -> "DistanceField":
+        """Builds the field from a bool grid whose cell (0,0,0) is centred at origin.
+
+        The grid is padded by `pad` metres on each side so that spheres near the
+        boundary see the obstacles; beyond the padded grid everything is free.
+        """
+        occupied = np.asarray(occupied)
+        if occupied.ndim != 3 or occupied.dtype != bool:
+            raise ValueError(f"occupancy must be a 3D bool array, got {occupied.dtype} {occupied.shape}")
+        if not resolution > 0:
+            raise ValueError(f"resolution must be positive, got {resolution}")
+        origin = np.asarray(origin, dtype=float).reshape(3)
+        if not np.all(np.isfinite(origin)):
+            raise ValueError("occupancy origin contains NaN or inf")
+        n_pad = int(math.ceil(pad / resolution))
+        occ = np.pad(occupied, n_pad, mode="constant", constant_values=False)
+        origin = origin - n_pad * resolution
+        if occ.any():
+            dist = ndimage.distance_transform_edt(~occ, sampling=resolution).astype(np.float32)
+        else:
+            dist = np.full(occ.shape, np.float32(1e6))
+        return DistanceField(dist, origin, float(resolution), SQRT3 * resolution, occ)
+
+    @staticmethod
+    def from_points(points: np.ndarray, resolution: float = 0.03, pad: float = 0.5) -> "DistanceField":
+        """Bins obstacle points (N, 3) into a grid of cell size `resolution`."""
+        points = np.asarray(points, dtype=float)
+        if points.ndim != 2 or points.shape[1] != 3:
+            raise ValueError(f"points must have shape (N, 3), got {points.shape}")
+        finite = np.all(np.isfinite(points), axis=1)
+        points = points[finite]
+        if points.shape[0] == 0:
+            # An empty map: a single free cell; everything is free.
+            return DistanceField.from_occupancy(np.zeros((1, 1, 1), bool), np.zeros(3), resolution, pad=0.0)
+        lo = np.floor(points.min(axis=0) / resolution) * resolution
+        idx = np.floor((points - lo) / resolution).astype(np.int64)
+        shape = idx.max(axis=0) + 1
+        occ = np.zeros(shape, dtype=bool)
+        occ[idx[:, 0], idx[:, 1], idx[:, 2]] = True
+        return DistanceField.from_occupancy(occ, lo + 0.5 * resolution, resolution, pad)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class CollisionEnvironment:
+    """What the robot must not touch: a distance field and/or exact primitives.
+
+    Attributes:
+        field: optional `DistanceField` (from the map).
+        box_p: (K, 3) box centres; box_R (K, 3, 3); box_half (K, 3) half extents.
+        cyl_p: (C, 3) cylinder centres; cyl_R (C, 3, 3) (axis = column 2);
+            cyl_radius (C,), cyl_half_length (C,).
+    """
+
+    field: DistanceField | None = None
+    box_p: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))
+    box_R: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3, 3)))
+    box_half: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))
+    cyl_p: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))
+    cyl_R: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3, 3)))
+    cyl_radius: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    cyl_half_length: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def is_empty(self) -> bool:
+        no_field = self.field is None or self.field.num_occupied == 0
+        return no_field and self.box_p.shape[0] == 0 and self.cyl_p.shape[0] == 0
+
+    @staticmethod
+    def from_points(points: np.ndarray, resolution: float = 0.03) -> "CollisionEnvironment":
+        return CollisionEnvironment(field=DistanceField.from_points(points, resolution))
+
+    @staticmethod
+    def from_occupancy(occupied: np.ndarray, origin: np.ndarray, resolution: float) -> "CollisionEnvironment":
+        return CollisionEnvironment(field=DistanceField.from_occupancy(occupied, origin, resolution))
+
+    @staticmethod
+    def from_primitives(primitives, min_top_z: float = 0.01) -> "CollisionEnvironment":
+        """Exact boxes/cylinders (`vamg_drake.world.primitives`) as the environment.
+
+        Primitives whose top is below `min_top_z` (the floor) are skipped.
+        """
+        from vamg_drake.world.primitives import WorldBox, WorldCylinder
+
+        boxes = [p for p in primitives if isinstance(p, WorldBox) and p.z_range()[1] > min_top_z]
+        cyls = [p for p in primitives if isinstance(p, WorldCylinder)]
+        return CollisionEnvironment(
+            box_p=np.array([b.p_WB for b in boxes], float).reshape(-1, 3),
+            box_R=np.array([b.R_WB for b in boxes], float).reshape(-1, 3, 3),
+            box_half=np.array([b.half_extents for b in boxes], float).reshape(-1, 3),
+            cyl_p=np.array([c.p_WC for c in cyls], float).reshape(-1, 3),
+            cyl_R=np.array([c.R_WC for c in cyls], float).reshape(-1, 3, 3),
+            cyl_radius=np.array([c.radius for c in cyls], float),
+            cyl_half_length=np.array([0.5 * c.length for c in cyls], float),
+        )
+
+    def voxelized(self, resolution: float = 0.03, z_max: float = 2.2) -> "CollisionEnvironment":
+        """The primitives rasterized into a conservative distance field.
+
+        A cell is occupied when its centre is within (sqrt(3)/2) h of a
+        primitive, so every primitive point lies in an occupied cell and the
+        field's bound holds.
+        """
+        if self.box_p.shape[0] == 0 and self.cyl_p.shape[0] == 0:
+            return CollisionEnvironment(field=DistanceField.from_points(np.zeros((0, 3)), resolution))
+        corners = []
+        for p, R, h in zip(self.box_p, self.box_R, self.box_half):
+            corners.append(p + np.abs(R) @ h)
+            corners.append(p - np.abs(R) @ h)
+        for p, R, r, hl in zip(self.cyl_p, self.cyl_R, self.cyl_radius, self.cyl_half_length):
+            ext = np.abs(R[:, 2]) * hl + r
+            corners.append(p + ext)
+            corners.append(p - ext)
+        corners = np.array(corners)
+        lo = np.floor(corners.min(axis=0) / resolution) * resolution - resolution
+        hi = corners.max(axis=0) + resolution
+        hi[2] = min(hi[2], z_max)
+        shape = np.maximum(np.ceil((hi - lo) / resolution).astype(int), 1)
+        origin = lo + 0.5 * resolution
+        g = [origin[i] + resolution * np.arange(shape[i]) for i in range(3)]
+        centres = np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, 3)
+        d = primitive_distances(centres, self)
+        occ = (d <= 0.5 * SQRT3 * resolution).reshape(shape)
+        return CollisionEnvironment(field=DistanceField.from_occupancy(occ, origin, resolution))
+
+    def footprint_field_2d(self, z_min: float, z_max: float, resolution: float = 0.05):
+        """A 2D clearance map of everything between z_min and z_max.
+
+        With a distance field, its occupied voxels in the z band are projected
+        onto the field's own xy grid; primitives are rasterized onto that grid
+        (or onto a `resolution` grid when there is no field): a cell is
+        occupied when some point of the primitive in the band projects within
+        (sqrt(2)/2) h of the cell centre (z sampled at spacing h, the test
+        radius grown accordingly, so the set is a superset).
+
+        Returns:
+            (dist (nx, ny) [m] from each cell centre to the nearest occupied
+            cell centre, origin (2,) centre of cell (0, 0), resolution, margin)
+            where margin = sqrt(2) h bounds the discretization like the 3D field:
+            a disc of radius r at a point p is free if dist(cell(p)) - margin > r.
+        """
+        f = self.field
+        has_prims = self.box_p.shape[0] + self.cyl_p.shape[0] > 0
+        if f is not None and f.num_occupied:
+            h = f.resolution
+            origin = f.origin[:2].copy()
+            z = f.origin[2] + h * np.arange(f.occupancy.shape[2])
+            band = (z >= z_min - 0.5 * h) & (z <= z_max + 0.5 * h)
+            occ = f.occupancy[:, :, band].any(axis=2)
+        elif has_prims:
+            h = resolution
+            lo, hi = self._primitive_xy_bounds()
+            lo -= 1.0
+            hi += 1.0
+            origin = np.floor(lo / h) * h + 0.5 * h
+            shape = np.maximum(np.ceil((hi - origin) / h).astype(int) + 1, 1)
+            occ = np.zeros(shape, bool)
+        else:
+            return np.full((1, 1), 1e6, np.float32), np.zeros(2), resolution, math.sqrt(2) * resolution
+        if has_prims:
+            zs = np.arange(max(z_min, -1.0), z_max + h, h)
+            test_r = math.hypot(0.5 * math.sqrt(2) * h, 0.5 * h)
+            _rasterize_primitives_2d(occ, origin, h, zs, test_r, self.box_p, self.box_R, self.box_half,
+                                     self.cyl_p, self.cyl_R, self.cyl_radius, self.cyl_half_length)
+        if not occ.any():
+            return np.full((1, 1), 1e6, np.float32), np.zeros(2), h, math.sqrt(2) * h
+        dist = ndimage.distance_transform_edt(~occ, sampling=h).astype(np.float32)
+        # A voxel may stand for an obstacle point up to (sqrt(3)/2) h from its
+        # centre (see `voxelized`), which projects up to that far in xy.
+        obstacle_term = 0.5 * SQRT3 * h if f is not None and f.num_occupied else 0.5 * math.sqrt(2) * h
+        return dist, origin, h, obstacle_term + 0.5 * math.sqrt(2) * h
+
+    def _primitive_xy_bounds(self):
+        pts = []
+        for p, R, hh in zip(self.box_p, self.box_R, self.box_half):
+            e = np.abs(R) @ hh
+            pts += [p - e, p + e]
+        for p, R, r, hl in zip(self.cyl_p, self.cyl_R, self.cyl_radius, self.cyl_half_length):
+            e = np.abs(R[:, 2]) * hl + r
+            pts += [p - e, p + e]
+        pts = np.array(pts)
+        return pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
+
+
+@numba.njit(cache=True)
+def _rasterize_primitives_2d(occ, origin, h, zs, test_r, box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl):
+    P = np.empty((zs.shape[0], 3))
+    d = np.empty(zs.shape[0])
+    for i in range(occ.shape[0]):
+        for j in range(occ.shape[1]):
+            if occ[i, j]:
+                continue
+            for k in range(zs.shape[0]):
+                P[k, 0] = origin[0] + i * h
+                P[k, 1] = origin[1] + j * h
+                P[k, 2] = zs[k]
+            _primitive_distance_kernel(P, box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, d)
+            if d.min() <= test_r:
+                occ[i, j] = True
+
+
+@numba.njit(cache=True)
+def _primitive_distance_kernel(P, box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, out):
+    for i in range(P.shape[0]):
+        best = 1e9
+        for k in range(box_p.shape[0]):
+            d2 = 0.0
+            for a in range(3):
+                lc = 0.0
+                for b in range(3):
+                    lc += box_R[k, b, a] * (P[i, b] - box_p[k, b])
+                e = abs(lc) - box_half[k, a]
+                if e > 0:
+                    d2 += e * e
+            d = math.sqrt(d2)
+            if d < best:
+                best = d
+        for k in range(cyl_p.shape[0]):
+            lc = np.zeros(3)
+            for a in range(3):
+                for b in range(3):
+                    lc[a] += cyl_R[k, b, a] * (P[i, b] - cyl_p[k, b])
+            er = math.sqrt(lc[0] * lc[0] + lc[1] * lc[1]) - cyl_r[k]
+            ez = abs(lc[2]) - cyl_hl[k]
+            d2 = 0.0
+            if er > 0:
+                d2 += er * er
+            if ez > 0:
+                d2 += ez * ez
+            d = math.sqrt(d2)
+            if d < best:
+                best = d
+        out[i] = best
+    return out
+
+
+def primitive_distances(points: np.ndarray, env: CollisionEnvironment) -> np.ndarray:
+    """Exact distance (0 inside) from each point (N, 3) to the env's primitives."""
+    P = np.ascontiguousarray(points, dtype=float).reshape(-1, 3)
+    out = np.empty(P.shape[0])
+    return _primitive_distance_kernel(
+        P, env.box_p, env.box_R, env.box_half, env.cyl_p, env.cyl_R,
+        env.cyl_radius, env.cyl_half_length, out,
+    )
+
+
+# ----------------------------------------------------------------------------
+# The robot side: fused FK + sphere checks.
+# ----------------------------------------------------------------------------
+
+
+@numba.njit(cache=True, inline="always")
+def _link_transforms(q, head, parent, X_PJ, joint_type, axis, var_index, T):
+    """T[i] (3x4) = X_W(link i) for configuration q (11,) and head (2,)."""
+    L = parent.shape[0]
+    nq = q.shape[0]
+    for i in range(L):
+        k = var_index[i]
+        # joint motion M (rotation R, translation t)
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
+        t0, t1, t2 = 0.0, 0.0, 0.0
+        if k >= 0:
+            if k < nq:
+                v = q[k]
+            elif k < nq + 2:
+                v = head[k - nq]
+            else:
+                v = 0.05  # fingers open (the sphere model covers the gripper)
+            ax, ay, az = axis[i, 0], axis[i, 1], axis[i, 2]
+            if joint_type[i] == 1:
+                c = math.cos(v)
+                s = math.sin(v)
+                tt = 1.0 - c
+                r00 = tt * ax * ax + c
+                r01 = tt * ax * ay - s * az
+                r02 = tt * ax * az + s * ay
+                r10 = tt * ax * ay + s * az
+                r11 = tt * ay * ay + c
+                r12 = tt * ay * az - s * ax
+                r20 = tt * ax * az - s * ay
+                r21 = tt * ay * az + s * ax
+                r22 = tt * az * az + c
+            elif joint_type[i] == 2:
+                t0, t1, t2 = v * ax, v * ay, v * az
+        # A = X_WP @ X_PJ (3x4)
+        p = parent[i]
+        A = T[i]  # scratch: holds X_WJ before the joint motion is applied
+        if p < 0:
+            for a in range(3):
+                for b in range(4):
+                    A[a, b] = X_PJ[i, a, b]
+        else:
+            for a in range(3):
+                for b in range(4):
+                    s_ = T[p, a, 0] * X_PJ[i, 0, b] + T[p, a, 1] * X_PJ[i, 1, b] + T[p, a, 2] * X_PJ[i, 2, b]
+                    if b == 3:
+                        s_ += T[p, a, 3]
+                    A[a, b] = s_
+        for a in range(3):
+            a0, a1, a2, a3 = A[a, 0], A[a, 1], A[a, 2], A[a, 3]
+            T[i, a, 0] = a0 * r00 + a1 * r10 + a2 * r20
+            T[i, a, 1] = a0 * r01 + a1 * r11 + a2 * r21
+            T[i, a, 2] = a0 * r02 + a1 * r12 + a2 * r22
+            T[i, a, 3] = a0 * t0 + a1 * t1 + a2 * t2 + a3
+
+
+@numba.njit(cache=True, inline="always")
+def _sphere_env_free(cx, cy, cz, r, has_field, dist, origin, h, margin,
+                     box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl):
+    if has_field:
+        ix = int(math.floor((cx - origin[0]) / h + 0.5))
+        iy = int(math.floor((cy - origin[1]) / h + 0.5))
+        iz = int(math.floor((cz - origin[2]) / h + 0.5))
+        if 0 <= ix < dist.shape[0] and 0 <= iy < dist.shape[1] and 0 <= iz < dist.shape[2]:
+            if dist[ix, iy, iz] - margin <= r:
+                return False
+    for k in range(box_p.shape[0]):
+        d2 = 0.0
+        dx = cx - box_p[k, 0]
+        dy = cy - box_p[k, 1]
+        dz = cz - box_p[k, 2]
+        for a in range(3):
+            lc = box_R[k, 0, a] * dx + box_R[k, 1, a] * dy + box_R[k, 2, a] * dz
+            e = abs(lc) - box_half[k, a]
+            if e > 0:
+                d2 += e * e
+        if d2 <= r * r:
+            return False
+    for k in range(cyl_p.shape[0]):
+        dx = cx - cyl_p[k, 0]
+        dy = cy - cyl_p[k, 1]
+        dz = cz - cyl_p[k, 2]
+        lx = cyl_R[k, 0, 0] * dx + cyl_R[k, 1, 0] * dy + cyl_R[k, 2, 0] * dz
+        ly = cyl_R[k, 0, 1] * dx + cyl_R[k, 1, 1] * dy + cyl_R[k, 2, 1] * dz
+        lz = cyl_R[k, 0, 2] * dx + cyl_R[k, 1, 2] * dy + cyl_R[k, 2, 2] * dz
+        er = math.sqrt(lx * lx + ly * ly) - cyl_r[k]
+        ez = abs(lz) - cyl_hl[k]
+        d2 = 0.0
+        if er > 0:
+            d2 += er * er
+        if ez > 0:
+            d2 += ez * ez
+        if d2 <= r * r:
+            return False
+    return True
+
+
+@numba.njit(cache=True)
+def _config_free(q, head, parent, X_PJ, joint_type, axis, var_index,
+                 sph_link, sph_c, sph_r, pairs, q_lo, q_hi, T, C,
+                 has_field, dist, origin, h, margin,
+                 box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
+                 prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere):
+    for j in range(q.shape[0]):
+        if not (q[j] >= q_lo[j] and q[j] <= q_hi[j]):  # also rejects NaN
+            return False
+    _link_transforms(q, head, parent, X_PJ, joint_type, axis, var_index, T)
+    S = sph_link.shape[0]
+    for s in range(S):
+        li = sph_link[s]
+        px, py, pz = sph_c[s, 0], sph_c[s, 1], sph_c[s, 2]
+        cx = T[li, 0, 0] * px + T[li, 0, 1] * py + T[li, 0, 2] * pz + T[li, 0, 3]
+        cy = T[li, 1, 0] * px + T[li, 1, 1] * py + T[li, 1, 2] * pz + T[li, 1, 3]
+        cz = T[li, 2, 0] * px + T[li, 2, 1] * py + T[li, 2, 2] * pz + T[li, 2, 3]
+        C[s, 0], C[s, 1], C[s, 2] = cx, cy, cz
+        if check_env[s]:
+            if not _sphere_env_free(cx, cy, cz, sph_r[s], has_field, dist, origin, h, margin,
+                                    box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl):
+                return False
+    for k in range(pairs.shape[0]):
+        a = pairs[k, 0]
+        b = pairs[k, 1]
+        dx = C[a, 0] - C[b, 0]
+        dy = C[a, 1] - C[b, 1]
+        dz = C[a, 2] - C[b, 2]
+        rr = sph_r[a] + sph_r[b]
+        if dx * dx + dy * dy + dz * dz <= rr * rr:
+            return False
+    # Spheres against the exact primitives of the robot body (self-collision).
+    for n in range(bp_prim.shape[0]):
+        k = bp_prim[n]
+        sidx = bp_sphere[n]
+        li = prim_link[k]
+        # p in the shape frame S: X_WS = T[li] @ X_LS.
+        dx = C[sidx, 0] - T[li, 0, 3]
+        dy = C[sidx, 1] - T[li, 1, 3]
+        dz = C[sidx, 2] - T[li, 2, 3]
+        lx = T[li, 0, 0] * dx + T[li, 1, 0] * dy + T[li, 2, 0] * dz - prim_X[k, 0, 3]
+        ly = T[li, 0, 1] * dx + T[li, 1, 1] * dy + T[li, 2, 1] * dz - prim_X[k, 1, 3]
+        lz = T[li, 0, 2] * dx + T[li, 1, 2] * dy + T[li, 2, 2] * dz - prim_X[k, 2, 3]
+        sx = prim_X[k, 0, 0] * lx + prim_X[k, 1, 0] * ly + prim_X[k, 2, 0] * lz
+        sy = prim_X[k, 0, 1] * lx + prim_X[k, 1, 1] * ly + prim_X[k, 2, 1] * lz
+        sz = prim_X[k, 0, 2] * lx + prim_X[k, 1, 2] * ly + prim_X[k, 2, 2] * lz
+        if prim_kind[k] == 0:
+            ex = max(abs(sx) - prim_half[k, 0], 0.0)
+            ey = max(abs(sy) - prim_half[k, 1], 0.0)
+            ez = max(abs(sz) - prim_half[k, 2], 0.0)
+            d2 = ex * ex + ey * ey + ez * ez
+        else:
+            er = max(math.sqrt(sx * sx + sy * sy) - prim_half[k, 0], 0.0)
+            ez = max(abs(sz) - prim_half[k, 2], 0.0)
+            d2 = er * er + ez * ez
+        if d2 <= sph_r[sidx] * sph_r[sidx]:
+            return False
+    return True
+
+
+@numba.njit(cache=True)
+def _batch_free(Q, head, parent, X_PJ, joint_type, axis, var_index,
+                sph_link, sph_c, sph_r, pairs, q_lo, q_hi,
+                has_field, dist, origin, h, margin,
+                box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
+                prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere,
+                order, stop_at_first, out):
+    """out[b] = config Q[b] free; visits rows in `order`; optional early exit.
+
+    Returns the first row found in collision (in visiting order) or -1.
+    """
+    T = np.empty((parent.shape[0], 3, 4))
+    C = np.empty((sph_link.shape[0], 3))
+    first = -1
+    for n in range(order.shape[0]):
+        b = order[n]
+        ok = _config_free(Q[b], head, parent, X_PJ, joint_type, axis, var_index,
+                          sph_link, sph_c, sph_r, pairs, q_lo, q_hi, T, C,
+                          has_field, dist, origin, h, margin,
+                          box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
+                          prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere)
+        out[b] = ok
+        if not ok and first < 0:
+            first = b
+            if stop_at_first:
+                return first
+    return first
+
+
+@numba.njit(cache=True)
+def _sphere_centers(Q, head, parent, X_PJ, joint_type, axis, var_index, sph_link, sph_c, out):
+    T = np.empty((parent.shape[0], 3, 4))
+    for b in range(Q.shape[0]):
+        _link_transforms(Q[b], head, parent, X_PJ, joint_type, axis, var_index, T)
+        for s in range(sph_link.shape[0]):
+            li = sph_link[s]
+            for a in range(3):
+                out[b, s, a] = (T[li, a, 0] * sph_c[s, 0] + T[li, a, 1] * sph_c[s, 1]
+                                + T[li, a, 2] * sph_c[s, 2] + T[li, a, 3])
+    return out
+
+
+def bisection_order(n: int) -> np.ndarray:
+    """Indices 0..n-1 in coarse-to-fine order (endpoints first, then midpoints)."""
+    if n <= 2:
+        return np.arange(n, dtype=np.int64)
+    order = [0, n - 1]
+    seen = np.zeros(n, bool)
+    seen[[0, n - 1]] = True
+    step = n - 1
+    while step > 1:
+        half = step / 2.0
+        for k in np.arange(half, n - 1, step):
+            i = int(round(k))
+            if not seen[i]:
+                seen[i] = True
+                order.append(i)
+        step = half
+    rest = np.flatnonzero(~seen)
+    return np.concatenate([np.array(order, dtype=np.int64), rest.astype(np.int64)])
+
+
+@dataclasses.dataclass(frozen=True)
+class CollisionCheckerConfig:
+    """Collision-check parameters.
+
+    Attributes:
+        motion_resolution: max sphere-centre displacement [m] between checked
+            states along a motion; spheres are inflated by half of it.
+        extra_padding: additional sphere inflation [m] (safety margin).
+        head_pan, head_tilt: head pose assumed while planning [rad].
+    """
+
+    motion_resolution: float = 0.03
+    extra_padding: float = 0.0
+    head_pan: float = 0.0
+    head_tilt: float = 0.0
+
+
+class CollisionChecker:
+    """Batched validity of whole-body configurations against an environment.
+
+    Args:
+        tree: the robot's `KinematicTree` (link order of the sphere model).
+        link_index, center_L, radius: the sphere model (S,), (S, 3), (S,).
+        self_collision_pairs: (P, 2) sphere index pairs that must not overlap.
+        env: the `CollisionEnvironment`.
+        config: `CollisionCheckerConfig`.
+    """
+
+    def __init__(self, tree, link_index, center_L, radius, self_collision_pairs,
+                 env: CollisionEnvironment, config: CollisionCheckerConfig = CollisionCheckerConfig(),
+                 body_primitives=()):
+        self.tree = tree
+        self.config = config
+        self.sph_link = np.ascontiguousarray(link_index, dtype=np.int64)
+        self.sph_c = np.ascontiguousarray(center_L, dtype=float)
+        self.base_radius = np.ascontiguousarray(radius, dtype=float)
+        self.pairs = np.ascontiguousarray(np.asarray(self_collision_pairs, dtype=np.int64).reshape(-1, 2))
+        self.padding = 0.5 * config.motion_resolution + config.extra_padding
+        self.sph_r = self.base_radius + self.padding
+        self.head = np.array([config.head_pan, config.head_tilt], dtype=float)
+        self.q_lo = np.ascontiguousarray(layout.Q_LOWER, dtype=float)
+        self.q_hi = np.ascontiguousarray(layout.Q_UPPER, dtype=float)
+        self.check_env = np.ones(self.sph_link.shape[0], dtype=np.bool_)
+        self._body = self._body_arrays(body_primitives)
+        self.lever = self._joint_levers()
+        self.set_environment(env)
+
+    @staticmethod
+    def for_fetch(env: CollisionEnvironment, config: CollisionCheckerConfig = CollisionCheckerConfig()) -> "CollisionChecker":
+        """The checker for the authored Fetch model and its sphere model."""
+        from vamg_drake.robot.kinematics import FetchKinematics
+        from vamg_drake.robot.spheres import SphereModel
+
+        spheres = SphereModel.load()
+        tree = FetchKinematics.instance().tree
+        return CollisionChecker(tree, spheres.link_index, spheres.center_L, spheres.radius,
+                                spheres.self_collision_pairs, env, config,
+                                body_primitives=spheres.body_primitives)
+
+    @staticmethod
+    def _body_arrays(prims):
+        """Flattens `vamg_drake.robot.spheres.BodyPrimitive`s for the kernel."""
+        K = len(prims)
+        link = np.array([p.link_index for p in prims], np.int64).reshape(K)
+        kind = np.array([0 if p.kind == "box" else 1 for p in prims], np.int64).reshape(K)
+        X = np.array([p.X_LS for p in prims], float).reshape(K, 4, 4)
+        half = np.array([p.half for p in prims], float).reshape(K, 3)
+        bp_prim = np.concatenate([np.full(len(p.spheres), k, np.int64) for k, p in enumerate(prims)] or [np.zeros(0, np.int64)])
+        bp_sphere = np.concatenate([np.asarray(p.spheres, np.int64) for p in prims] or [np.zeros(0, np.int64)])
+        return link, kind, X, half, bp_prim, bp_sphere
+
+    def set_environment(self, env: CollisionEnvironment) -> None:
+        """Replaces the environment (e.g. a new map)."""
+        self.env = env
+        f = env.field
+        if f is None:
+            self._field = (False, np.zeros((1, 1, 1), np.float32), np.zeros(3), 1.0, 0.0)
+        else:
+            self._field = (True, f.dist, f.origin, f.resolution, f.margin)
+
+    def with_environment(self, env: CollisionEnvironment) -> "CollisionChecker":
+        """A copy of this checker over another environment."""
+        other = object.__new__(CollisionChecker)
+        other.__dict__.update(self.__dict__)
+        other.set_environment(env)
+        return other
+
+    def _args(self):
+        t = self.tree
+        e = self.env
+        hf, dist, origin, h, margin = self._field
+        return (self.head, t.parent, t.X_PJ, t.joint_type, t.axis, t.var_index,
+                self.sph_link, self.sph_c, self.sph_r, self.pairs, self.q_lo, self.q_hi,
+                hf, dist, origin, h, margin,
+                e.box_p, e.box_R, e.box_half, e.cyl_p, e.cyl_R, e.cyl_radius, e.cyl_half_length,
+                self.check_env, *self._body)
+
+    def is_free(self, Q: np.ndarray) -> np.ndarray:
+        """Validity (B,) of configurations Q (B, 11) (no early exit)."""
+        Q = self._as_batch(Q)
+        out = np.zeros(Q.shape[0], dtype=np.bool_)
+        _batch_free(Q, *self._args(), np.arange(Q.shape[0], dtype=np.int64), False, out)
+        return out
+
+    def first_collision(self, Q: np.ndarray, order: np.ndarray | None = None) -> int:
+        """Index of a configuration of Q in collision (coarse-to-fine search), or -1."""
+        Q = self._as_batch(Q)
+        if order is None:
+            order = bisection_order(Q.shape[0])
+        out = np.zeros(Q.shape[0], dtype=np.bool_)
+        return int(_batch_free(Q, *self._args(), order, True, out))
+
+    def all_free(self, Q: np.ndarray) -> bool:
+        return self.first_collision(Q) < 0
+
+    def sphere_centers(self, Q: np.ndarray) -> np.ndarray:
+        """World sphere centres (B, S, 3)."""
+        Q = self._as_batch(Q)
+        out = np.empty((Q.shape[0], self.sph_link.shape[0], 3))
+        t = self.tree
+        return _sphere_centers(Q, self.head, t.parent, t.X_PJ, t.joint_type, t.axis,
+                               t.var_index, self.sph_link, self.sph_c, out)
+
+    def _joint_levers(self) -> np.ndarray:
+        """Per-coordinate bound on sphere-centre motion per unit joint motion.
+
+        For a revolute joint: the largest distance from the joint origin to a
+        downstream sphere centre, bounded by the sum of the fixed offsets along
+        the chain (the triangle inequality), so it holds for any configuration.
+        """
+        t = self.tree
+        lever = np.zeros(layout.NQ)
+        lever[0] = lever[1] = 1.0
+        for s in range(self.sph_link.shape[0]):
+            li = int(self.sph_link[s])
+            reach = float(np.linalg.norm(self.sph_c[s]))
+            i = li
+            while i >= 0:
+                k = int(t.var_index[i])
+                if 0 <= k < layout.NQ and t.joint_type[i] == 1:
+                    lever[k] = max(lever[k], reach)
+                reach += float(np.linalg.norm(t.X_PJ[i, :3, 3]))
+                i = int(t.parent[i])
+        return lever
+
+    def sphere_displacement_bound(self, dQ: np.ndarray) -> np.ndarray:
+        """Upper bound (...,) on any sphere centre's motion for joint steps dQ (..., 11).
+
+        Base x/y contribute their planar norm; every other joint |dq_j| times its lever.
+        """
+        dQ = np.asarray(dQ, dtype=float)
+        planar = np.hypot(dQ[..., 0], dQ[..., 1])
+        return planar + np.abs(dQ[..., 2:]) @ self.lever[2:]
+
+    def _as_batch(self, Q: np.ndarray) -> np.ndarray:
+        Q = np.ascontiguousarray(np.atleast_2d(np.asarray(Q, dtype=float)))
+        if Q.ndim != 2 or Q.shape[1] != layout.NQ:
+            raise ValueError(f"configurations must have shape (B, {layout.NQ}), got {Q.shape}")
+        return Q
+
+    def interpolate(self, qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
+        """States (n, 11) on the straight line qa->qb, both ends included, at the
+        motion resolution."""
+        d = float(self.sphere_displacement_bound(qb - qa))
+        n = max(int(math.ceil(d / self.config.motion_resolution)), 1) + 1
+        s = np.linspace(0.0, 1.0, n)[:, None]
+        return qa + s * (qb - qa)
+
+    def motion_free(self, qa: np.ndarray, qb: np.ndarray) -> bool:
+        """True when the straight motion qa->qb is free (ends included)."""
+        return self.first_collision(self.interpolate(qa, qb)) < 0
+
+    def path_free(self, path: np.ndarray) -> bool:
+        """True when every straight segment of path (N, 11) is free."""
+        return self.first_collision(densify(path, self)) < 0
+
+
+def densify(path: np.ndarray, checker: CollisionChecker, resolution: float | None = None) -> np.ndarray:
+    """Re-interpolates path (N, 11) so consecutive states move spheres <= resolution."""
+    path = np.asarray(path, dtype=float)
+    if path.shape[0] < 2:
+        return path.copy()
+    res = checker.config.motion_resolution if resolution is None else resolution
+    d = checker.sphere_displacement_bound(np.diff(path, axis=0))
+    counts = np.maximum(np.ceil(d / res).astype(np.int64), 1)
+    out = [path[:1]]
+    for i, n in enumerate(counts):
+        s = (np.arange(1, n + 1) / n)[:, None]
+        out.append(path[i] + s * (path[i + 1] - path[i]))
+    return np.concatenate(out)

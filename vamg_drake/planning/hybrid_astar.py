@@ -1,0 +1,371 @@
+"""Hybrid A* for the mobile base on a 2D clearance map, with Reeds-Shepp
+analytic expansions and in-place rotations.
+
+The base is a disc of radius `footprint_radius` (the stowed robot's projected
+outline). A pose is free when the 2D clearance (`Costmap2D`) at its cell,
+minus the map's discretization bound, exceeds that radius. The search runs
+over (x, y, theta) bins with motion primitives (forward/backward arcs of the
+minimum turning radius and straight segments, plus in-place turns); its
+heuristic is the obstacle-aware 2D Dijkstra distance from the goal. Every few
+expansions a Reeds-Shepp curve to the goal is tried (analytic expansion).
+Costs are travel times at the base's speed limits.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import heapq
+import math
+
+import numba
+import numpy as np
+
+from vamg_drake.planning import reeds_shepp as rs
+from vamg_drake.robot import layout
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Costmap2D:
+    """Clearance [m] of 2D cell centres from the nearest obstacle cell centre.
+
+    Attributes:
+        clearance: (nx, ny) float32.
+        origin: (2,) centre of cell (0, 0).
+        resolution: cell size [m].
+        margin: discretization bound (sqrt(2) * resolution).
+    """
+
+    clearance: np.ndarray
+    origin: np.ndarray
+    resolution: float
+    margin: float
+
+    def free_mask(self, radius: float) -> np.ndarray:
+        return self.clearance - self.margin > radius
+
+    def cell(self, xy: np.ndarray) -> tuple[int, int]:
+        i = int(math.floor((xy[0] - self.origin[0]) / self.resolution + 0.5))
+        j = int(math.floor((xy[1] - self.origin[1]) / self.resolution + 0.5))
+        return i, j
+
+
+@dataclasses.dataclass(frozen=True)
+class HybridAStarConfig:
+    """Search parameters.
+
+    Attributes:
+        turning_radius: minimum turning radius of arcs and Reeds-Shepp curves [m].
+        step: arc length of one motion primitive [m].
+        theta_bins: heading bins.
+        reverse_penalty: cost multiplier when driving backwards.
+        allow_in_place_rotation: add in-place turns of one heading bin.
+        analytic_every: try a Reeds-Shepp connection every n expansions.
+        max_expansions: search limit.
+        check_step: sampling step [m] of collision checks along curves.
+    """
+
+    turning_radius: float = 0.4
+    step: float = 0.2
+    theta_bins: int = 36
+    reverse_penalty: float = 1.5
+    allow_in_place_rotation: bool = True
+    analytic_every: int = 4
+    max_expansions: int = 20000
+    check_step: float = 0.04
+
+
+@numba.njit(cache=True)
+def _poses_free(poses, clearance, origin, h, limit):
+    """True when every pose (M, 3) lies on a cell with clearance > limit."""
+    nx, ny = clearance.shape
+    for k in range(poses.shape[0]):
+        i = int(math.floor((poses[k, 0] - origin[0]) / h + 0.5))
+        j = int(math.floor((poses[k, 1] - origin[1]) / h + 0.5))
+        if 0 <= i < nx and 0 <= j < ny:
+            if not clearance[i, j] > limit:
+                return False
+    return True
+
+
+@numba.njit(cache=True)
+def _dijkstra_2d(free, gi, gj, h):
+    """8-connected grid distances [m] from cell (gi, gj) over free cells."""
+    nx, ny = free.shape
+    dist = np.full((nx, ny), np.inf)
+    if not (0 <= gi < nx and 0 <= gj < ny):
+        return dist
+    dist[gi, gj] = 0.0
+    heap = [(0.0, gi, gj)]
+    diag = math.sqrt(2.0) * h
+    while len(heap) > 0:
+        d, i, j = heapq.heappop(heap)
+        if d > dist[i, j]:
+            continue
+        for di in range(-1, 2):
+            for dj in range(-1, 2):
+                if di == 0 and dj == 0:
+                    continue
+                a = i + di
+                b = j + dj
+                if a < 0 or b < 0 or a >= nx or b >= ny or not free[a, b]:
+                    continue
+                nd = d + (diag if (di != 0 and dj != 0) else h)
+                if nd < dist[a, b]:
+                    dist[a, b] = nd
+                    heapq.heappush(heap, (nd, a, b))
+    return dist
+
+
+@numba.njit(cache=True)
+def _wrap(a):
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@numba.njit(cache=True)
+def _prim_poses(x, y, th, kappa, length, dth, n, out):
+    """Fills out[:n] with poses along one motion primitive from (x, y, th)."""
+    if dth != 0.0:
+        out[0, 0], out[0, 1], out[0, 2] = x, y, th + dth
+        return 1
+    for k in range(n):
+        s = length * (k + 1) / n
+        if kappa == 0.0:
+            out[k, 0] = x + s * math.cos(th)
+            out[k, 1] = y + s * math.sin(th)
+            out[k, 2] = th
+        else:
+            nth = th + kappa * s
+            out[k, 0] = x + (math.sin(nth) - math.sin(th)) / kappa
+            out[k, 1] = y - (math.cos(nth) - math.cos(th)) / kappa
+            out[k, 2] = nth
+    return n
+
+
+@numba.njit(cache=True)
+def _search(start, goal, clearance, origin, h, limit, h2d, prims, prim_n, radius, check_step,
+            theta_bins, xy_res, analytic_every, max_exp, v, heur_weight):
+    """The Hybrid A* loop. Returns (status, node, poses, parents, prim ids, rs types, rs lengths, expansions).
+
+    status: 1 found (node connects to the goal by the RS path), 0 exhausted, -1 limit.
+    """
+    nx, ny = clearance.shape
+    # the search lattice covers the costmap
+    x0 = origin[0] - 0.5 * h
+    y0 = origin[1] - 0.5 * h
+    gx = int(math.ceil(nx * h / xy_res)) + 1
+    gy = int(math.ceil(ny * h / xy_res)) + 1
+    closed = np.zeros((gx, gy, theta_bins), dtype=np.bool_)
+    cap = 4096
+    poses = np.empty((cap, 3))
+    parents = np.empty(cap, dtype=np.int64)
+    prim_of = np.empty(cap, dtype=np.int64)
+    g_of = np.empty(cap)
+    poses[0, 0], poses[0, 1], poses[0, 2] = start[0], start[1], start[2]
+    parents[0] = -1
+    prim_of[0] = -1
+    g_of[0] = 0.0
+    n_nodes = 1
+    heap = [(0.0, 0)]
+    buf = np.empty((64, 3))
+    diag = math.sqrt(2.0)
+    expansions = 0
+    best_types = np.zeros(5, dtype=np.int64)
+    best_lengths = np.zeros(5)
+    while len(heap) > 0:
+        f, idx = heapq.heappop(heap)
+        x, y, th = poses[idx, 0], poses[idx, 1], poses[idx, 2]
+        ci = int(math.floor((x - x0) / xy_res))
+        cj = int(math.floor((y - y0) / xy_res))
+        ct = int(math.floor((_wrap(th) + math.pi) / (2.0 * math.pi) * theta_bins)) % theta_bins
+        if ci < 0 or cj < 0 or ci >= gx or cj >= gy:
+            continue
+        if closed[ci, cj, ct]:
+            continue
+        closed[ci, cj, ct] = True
+        expansions += 1
+        if expansions > max_exp:
+            return -1, -1, poses[:n_nodes], parents[:n_nodes], prim_of[:n_nodes], best_types, best_lengths, expansions
+        dgoal = math.hypot(x - goal[0], y - goal[1])
+        if expansions % analytic_every == 1 or dgoal < 4.0 * radius:
+            types, lengths, total = rs.shortest_path(poses[idx], goal, radius)
+            path = rs.sample_path(poses[idx], types, lengths, radius, check_step)
+            if _poses_free(path, clearance, origin, h, limit):
+                return 1, idx, poses[:n_nodes], parents[:n_nodes], prim_of[:n_nodes], types, lengths, expansions
+        for p in range(prims.shape[0]):
+            m = _prim_poses(x, y, th, prims[p, 0], prims[p, 1], prims[p, 2], prim_n[p], buf)
+            qx, qy, qt = buf[m - 1, 0], buf[m - 1, 1], buf[m - 1, 2]
+            ai = int(math.floor((qx - x0) / xy_res))
+            aj = int(math.floor((qy - y0) / xy_res))
+            at = int(math.floor((_wrap(qt) + math.pi) / (2.0 * math.pi) * theta_bins)) % theta_bins
+            if ai < 0 or aj < 0 or ai >= gx or aj >= gy or closed[ai, aj, at]:
+                continue
+            if prims[p, 2] == 0.0 and not _poses_free(buf[:m], clearance, origin, h, limit):
+                continue
+            # heuristic: obstacle-aware 2D distance (minus its grid slack) or Euclid
+            i = int(math.floor((qx - origin[0]) / h + 0.5))
+            j = int(math.floor((qy - origin[1]) / h + 0.5))
+            e = math.hypot(qx - goal[0], qy - goal[1])
+            if 0 <= i < nx and 0 <= j < ny:
+                d2 = h2d[i, j]
+                if d2 == np.inf:
+                    continue
+                e = max(e, d2 - 2.0 * diag * h)
+            ng = g_of[idx] + prims[p, 3]
+            if n_nodes == cap:
+                cap *= 2
+                poses2 = np.empty((cap, 3))
+                poses2[:n_nodes] = poses[:n_nodes]
+                poses = poses2
+                par2 = np.empty(cap, dtype=np.int64)
+                par2[:n_nodes] = parents[:n_nodes]
+                parents = par2
+                pr2 = np.empty(cap, dtype=np.int64)
+                pr2[:n_nodes] = prim_of[:n_nodes]
+                prim_of = pr2
+                g2 = np.empty(cap)
+                g2[:n_nodes] = g_of[:n_nodes]
+                g_of = g2
+            poses[n_nodes, 0], poses[n_nodes, 1], poses[n_nodes, 2] = qx, qy, qt
+            parents[n_nodes] = idx
+            prim_of[n_nodes] = p
+            g_of[n_nodes] = ng
+            heapq.heappush(heap, (ng + heur_weight * e / v, n_nodes))
+            n_nodes += 1
+    return 0, -1, poses[:n_nodes], parents[:n_nodes], prim_of[:n_nodes], best_types, best_lengths, expansions
+
+
+@dataclasses.dataclass(frozen=True)
+class BasePath:
+    """Base poses (N, 3) (theta unwrapped) and whether each step reverses."""
+
+    poses: np.ndarray
+    expansions: int
+
+
+def _arc(pose: np.ndarray, kappa: float, length: float, n: int) -> np.ndarray:
+    """n poses along an arc of curvature kappa and signed length from pose (excluded)."""
+    s = length * np.arange(1, n + 1) / n
+    x, y, th = pose
+    if abs(kappa) < 1e-12:
+        return np.stack([x + s * math.cos(th), y + s * math.sin(th), np.full(n, th)], axis=1)
+    nth = th + kappa * s
+    return np.stack(
+        [x + (np.sin(nth) - math.sin(th)) / kappa, y - (np.cos(nth) - math.cos(th)) / kappa, nth], axis=1
+    )
+
+
+class HybridAStar:
+    """Hybrid A* planner for the base disc on a `Costmap2D`."""
+
+    def __init__(self, costmap: Costmap2D, footprint_radius: float,
+                 config: HybridAStarConfig = HybridAStarConfig()):
+        self.costmap = costmap
+        self.config = config
+        self.radius = float(footprint_radius)
+        self.limit = self.radius + costmap.margin
+        self.v = layout.TRACKER_BASE_V
+        self.w = layout.TRACKER_BASE_W
+        self._primitives = self._make_primitives()
+
+    def poses_free(self, poses: np.ndarray) -> bool:
+        cm = self.costmap
+        return bool(_poses_free(np.ascontiguousarray(poses, float), cm.clearance, cm.origin, cm.resolution, self.limit))
+
+    def reeds_shepp(self, a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        """Sampled RS path a->b (M, 3) if its poses are free, else None."""
+        R = self.config.turning_radius
+        types, lengths, _ = rs.shortest_path(a, b, R)
+        poses = rs.sample_path(a, types, lengths, R, self.config.check_step)
+        return poses if self.poses_free(poses) else None
+
+    def _make_primitives(self):
+        """Rows (kappa, signed length, in-place dtheta, cost [s]) and check counts."""
+        c = self.config
+        rows, counts = [], []
+        n = max(int(math.ceil(c.step / c.check_step)), 1)
+        for direction in (1.0, -1.0):
+            for kappa in (-1.0 / c.turning_radius, 0.0, 1.0 / c.turning_radius):
+                t = max(c.step / self.v, abs(kappa) * c.step / self.w)
+                if direction < 0:
+                    t *= c.reverse_penalty
+                rows.append((kappa, direction * c.step, 0.0, t))
+                counts.append(n)
+        if c.allow_in_place_rotation:
+            dth = 2.0 * math.pi / c.theta_bins
+            for sgn in (1.0, -1.0):
+                rows.append((0.0, 0.0, sgn * dth, dth / self.w))
+                counts.append(1)
+        return np.array(rows), np.array(counts, dtype=np.int64)
+
+    def plan(self, start: np.ndarray, goal: np.ndarray, deadline_s: float | None = None) -> tuple[BasePath | None, str]:
+        """A base path start->goal (poses (x, y, theta), theta unwrapped), or (None, reason)."""
+        c = self.config
+        cm = self.costmap
+        start = np.asarray(start, float)
+        goal = np.asarray(goal, float)
+        if not self.poses_free(start[None]):
+            return None, "base start in collision (stowed footprint)"
+        if not self.poses_free(goal[None]):
+            return None, "base goal in collision (stowed footprint)"
+        direct = self.reeds_shepp(start, goal)
+        if direct is not None:
+            return BasePath(direct, 0), ""
+        free = cm.free_mask(self.radius)
+        gi, gj = cm.cell(goal)
+        h2d = _dijkstra_2d(free, gi, gj, cm.resolution)
+        si, sj = cm.cell(start)
+        nx, ny = free.shape
+        if 0 <= si < nx and 0 <= sj < ny and not np.isfinite(h2d[si, sj]):
+            return None, "no base path (goal unreachable in the 2D map)"
+        prims, counts = self._primitives
+        xy_res = max(cm.resolution, 0.5 * c.step)
+        status, node, poses, parents, prim_of, types, lengths, expansions = _search(
+            start, goal, cm.clearance, cm.origin, cm.resolution, self.limit, h2d, prims, counts,
+            c.turning_radius, c.check_step, c.theta_bins, xy_res, c.analytic_every,
+            c.max_expansions, self.v, 1.2)
+        if status == -1:
+            return None, "no base path (search limit)"
+        if status == 0:
+            return None, "no base path (search exhausted)"
+        chain = []
+        i = node
+        while i > 0:
+            chain.append(i)
+            i = int(parents[i])
+        segs = [start[None]]
+        buf = np.empty((64, 3))
+        for i in reversed(chain):
+            p = poses[int(parents[i])]
+            k = int(prim_of[i])
+            m = _prim_poses(p[0], p[1], p[2], prims[k, 0], prims[k, 1], prims[k, 2], counts[k], buf)
+            segs.append(buf[:m].copy())
+        tail = rs.sample_path(poses[node], types, lengths, c.turning_radius, c.check_step)
+        segs.append(tail[1:])
+        return BasePath(np.concatenate(segs), int(expansions)), ""
+
+    def shortcut(self, poses: np.ndarray, rng: np.random.Generator, iterations: int = 20) -> np.ndarray:
+        """Randomized shortcutting of a base path with Reeds-Shepp connections."""
+        R = self.config.turning_radius
+        for _ in range(iterations):
+            n = poses.shape[0]
+            if n < 4:
+                break
+            i, j = sorted(rng.choice(n, 2, replace=False))
+            if j - i < 3:
+                continue
+            a, b = poses[i], poses[j]
+            types, lengths, total = rs.shortest_path(a, b, R)
+            old = float(np.sum(np.hypot(*np.diff(poses[i:j + 1, :2], axis=0).T))) + 0.3 * float(
+                np.sum(np.abs(np.diff(poses[i:j + 1, 2]))))
+            seg = rs.sample_path(a, types, lengths, R, self.config.check_step)
+            new = float(np.sum(np.hypot(*np.diff(seg[:, :2], axis=0).T))) + 0.3 * float(
+                np.sum(np.abs(np.diff(seg[:, 2]))))
+            if new >= old - 1e-6 or not self.poses_free(seg):
+                continue
+            # keep theta continuous: RS starts at a's unwrapped theta; shift the rest
+            end_shift = seg[-1, 2] - b[2]
+            rest = poses[j + 1:].copy()
+            rest[:, 2] += end_shift
+            seg[-1, 2] = b[2] + end_shift
+            poses = np.concatenate([poses[:i], seg, rest])
+        return poses

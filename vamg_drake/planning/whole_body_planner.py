@@ -1,0 +1,416 @@
+"""The real-time whole-body planner (the paper's motion policy pi_r).
+
+Hierarchical, after the paper: a base path from Hybrid A* (global guidance)
+with Reeds-Shepp connections; arm motions from RRT-Connect at fixed base
+placements; base and arm discretized separately and synchronized into
+whole-body states that are validated in batches by the sphere checker.
+
+One attempt:
+  1. Base path start->goal (`HybridAStar`, which first tries one Reeds-Shepp
+     curve), shortened by randomized Reeds-Shepp shortcuts.
+  2. Whole body, cheapest first: (a) the arm interpolated start->goal in sync
+     with the whole base path; else (b) fold the arm to the travel (stowed)
+     pose during the first part of the base path or at the start placement
+     (RRT-Connect), drive with the arm stowed, and unfold to the goal arm in
+     sync with the last part of the base path, trying candidate placements
+     along it, the last one being the goal placement (RRT-Connect).
+  3. Refinement of the fixed-base arm pieces: randomized shortcutting and
+     B-spline smoothing (kept only where valid); dense re-interpolation of the
+     whole path at the checker's motion resolution and a final batch check.
+  4. Time parametrization within `layout.V_MAX`.
+Budget: `PlannerConfig.attempt_budget_s` per attempt, `max_attempts` attempts.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from vamg_drake.planning import smoothing
+from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment, densify
+from vamg_drake.planning.hybrid_astar import Costmap2D, HybridAStar, HybridAStarConfig
+from vamg_drake.planning.rrt_connect import RRTConnectConfig, rrt_connect
+from vamg_drake.planning.trajectory import TimedTrajectory
+from vamg_drake.robot import layout
+
+
+class FailureReason:
+    """Why a plan failed (`PlanResult.reason`)."""
+
+    NONE = ""
+    INVALID_INPUT = "invalid_input"
+    START_IN_COLLISION = "start_in_collision"
+    GOAL_IN_COLLISION = "goal_in_collision"
+    NO_BASE_PATH = "no_base_path"
+    NO_ARM_PATH = "no_arm_path"
+    TIMEOUT = "timeout"
+
+
+@dataclasses.dataclass(frozen=True)
+class PlannerConfig:
+    """Whole-body planner parameters (loadable with `yaml_load_typed`).
+
+    Attributes:
+        attempt_budget_s: time budget of one attempt [s].
+        max_attempts: attempts (each with fresh random samples).
+        seed: random seed; the same seed, problem and map give the same plan.
+        turning_radius: minimum turning radius of the base curves [m].
+        costmap_resolution: cell size of the base's 2D clearance map [m].
+        motion_resolution: max sphere displacement between checked states [m].
+        extra_padding: extra sphere inflation [m].
+        base_shortcut_iterations: Reeds-Shepp shortcut tries on the base path.
+        arm_shortcut_iterations: shortcut tries on each fixed-base arm path.
+        bspline_samples: samples of the smoothed fixed-base arm paths.
+        rrt_step: RRT-Connect extension step (max-norm) [rad].
+        rrt_max_iterations: RRT-Connect iteration limit per arm motion.
+        placement_fractions: where along the base path (fraction of its
+            length) the arm may start unfolding; 1.0 = at the goal placement.
+        fold_fractions: fractions of the base path over which the arm may fold
+            into the travel pose; 0.0 = fold at the start placement.
+        hybrid_astar_max_expansions: search limit of the base planner.
+        travel_torso_arm: torso + 7 arm joints (8,) held while driving. Inside
+            the base footprint like `layout.Q_ARM_STOW`, but raised and folded
+            with free space around it (the stow pose sits in a tight pocket of
+            self-collision space that sampling-based arm planning rarely leaves).
+    """
+
+    attempt_budget_s: float = 0.2
+    max_attempts: int = 3
+    seed: int = 0
+    turning_radius: float = 0.4
+    costmap_resolution: float = 0.05
+    motion_resolution: float = 0.03
+    extra_padding: float = 0.0
+    base_shortcut_iterations: int = 15
+    arm_shortcut_iterations: int = 25
+    bspline_samples: int = 25
+    rrt_step: float = 0.6
+    rrt_max_iterations: int = 3000
+    placement_fractions: tuple[float, ...] = (0.6, 0.8, 1.0)
+    fold_fractions: tuple[float, ...] = (0.3, 0.0)
+    hybrid_astar_max_expansions: int = 20000
+    travel_torso_arm: tuple[float, ...] = (0.006, 1.432, -1.168, -0.587, -0.66, -1.532, 1.079, -1.958)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class PlanResult:
+    """The outcome of a planning request.
+
+    Attributes:
+        success: True when `trajectory` is valid.
+        reason: a `FailureReason` value ("" on success).
+        trajectory: the timed whole-body trajectory (times from 0), or None.
+        timings: milliseconds per stage ("base", "arm", "refine", "total").
+        attempts: attempts used.
+        message: a human-readable detail of the failure.
+    """
+
+    success: bool
+    reason: str
+    trajectory: TimedTrajectory | None
+    timings: dict
+    attempts: int = 0
+    message: str = ""
+
+
+class _Timeout(Exception):
+    pass
+
+
+def _unwrap_toward(q_from: np.ndarray, q_to: np.ndarray) -> np.ndarray:
+    """q_to with continuous joints shifted to the nearest equivalent of q_from."""
+    out = np.array(q_to, float, copy=True)
+    c = layout.IS_CONTINUOUS
+    out[c] = q_from[c] + layout.wrap_angle(q_to[c] - q_from[c])
+    return out
+
+
+class WholeBodyPlanner:
+    """Plans collision-free whole-body trajectories for the Fetch.
+
+    Args:
+        checker: the batched `CollisionChecker` (holds the environment).
+        config: `PlannerConfig`.
+    """
+
+    def __init__(self, checker: CollisionChecker, config: PlannerConfig = PlannerConfig()):
+        self.config = config
+        self.checker = checker
+        self._hybrid: HybridAStar | None = None
+        self.travel = np.asarray(config.travel_torso_arm, dtype=float)
+        # Footprint of the robot with the arm in the travel pose, about the base origin.
+        q0 = np.concatenate([[0.0, 0.0, 0.0], self.travel])
+        c = checker.sphere_centers(q0[None])[0]
+        r = checker.sph_r
+        self.footprint_radius = float(np.max(np.hypot(c[:, 0], c[:, 1]) + r))
+        self.robot_top = float(np.max(c[:, 2] + r))
+
+    @staticmethod
+    def for_fetch(env: CollisionEnvironment, config: PlannerConfig = PlannerConfig()) -> "WholeBodyPlanner":
+        from vamg_drake.planning.collision import CollisionCheckerConfig
+
+        cc = CollisionChecker.for_fetch(
+            env, CollisionCheckerConfig(motion_resolution=config.motion_resolution,
+                                        extra_padding=config.extra_padding))
+        return WholeBodyPlanner(cc, config)
+
+    # -- environment ---------------------------------------------------------
+
+    def set_environment(self, env: CollisionEnvironment) -> None:
+        """Replaces the environment (a new map); the base costmap is rebuilt lazily."""
+        self.checker.set_environment(env)
+        self._hybrid = None
+
+    def _base_planner(self) -> HybridAStar:
+        if self._hybrid is None:
+            env = self.checker.env
+            dist, origin, res, margin = env.footprint_field_2d(-10.0, self.robot_top + 0.05,
+                                                               self.config.costmap_resolution)
+            cm = Costmap2D(dist, origin, res, margin)
+            self._hybrid = HybridAStar(cm, self.footprint_radius, HybridAStarConfig(
+                turning_radius=self.config.turning_radius,
+                max_expansions=self.config.hybrid_astar_max_expansions))
+        return self._hybrid
+
+    # -- validation ------------------------------------------------------------
+
+    def validate_configuration(self, q: np.ndarray, name: str) -> tuple[np.ndarray | None, str]:
+        """Returns (q as (11,) float, "") or (None, message)."""
+        try:
+            q = np.asarray(q, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            return None, f"{name} is not numeric"
+        if q.shape[0] != layout.NQ:
+            return None, f"{name} must have {layout.NQ} entries, got {q.shape[0]}"
+        if not np.all(np.isfinite(q)):
+            bad = [layout.WHOLE_BODY_JOINTS[i] for i in np.flatnonzero(~np.isfinite(q))]
+            return None, f"{name} has NaN/inf in {bad}"
+        if not layout.within_limits(q):
+            bad = [layout.WHOLE_BODY_JOINTS[i] for i in
+                   np.flatnonzero((q < layout.Q_LOWER) | (q > layout.Q_UPPER))]
+            return None, f"{name} is outside the joint limits of {bad}"
+        return q, ""
+
+    def trajectory_is_valid(self, trajectory: TimedTrajectory, from_time: float | None = None) -> bool:
+        """Re-checks the (remaining part of a) trajectory against the current environment."""
+        q = trajectory.q
+        if from_time is not None and from_time > trajectory.start_time:
+            keep = trajectory.times > from_time
+            q = np.concatenate([trajectory.sample(from_time)[None], q[keep]])
+        return self.checker.first_collision(densify(q, self.checker)) < 0
+
+    # -- planning ----------------------------------------------------------------
+
+    def plan(self, q_start: np.ndarray, q_goal: np.ndarray) -> PlanResult:
+        """Plans a whole-body trajectory from q_start to the configuration q_goal."""
+        t0 = time.perf_counter()
+        timings = {"base": 0.0, "arm": 0.0, "refine": 0.0, "total": 0.0}
+
+        def fail(reason: str, message: str, attempts: int = 0) -> PlanResult:
+            timings["total"] = 1e3 * (time.perf_counter() - t0)
+            return PlanResult(False, reason, None, timings, attempts, message)
+
+        qs, msg = self.validate_configuration(q_start, "start")
+        if qs is None:
+            return fail(FailureReason.INVALID_INPUT, msg)
+        qg, msg = self.validate_configuration(q_goal, "goal")
+        if qg is None:
+            return fail(FailureReason.INVALID_INPUT, msg)
+        if not self.checker.is_free(qs[None])[0]:
+            return fail(FailureReason.START_IN_COLLISION, "the start configuration is in collision")
+        if not self.checker.is_free(qg[None])[0]:
+            return fail(FailureReason.GOAL_IN_COLLISION, "the goal configuration is in collision")
+        qg = _unwrap_toward(qs, qg)
+        hybrid = self._base_planner()
+        if not hybrid.poses_free(qg[None, :3]) and np.hypot(*(qg[:2] - qs[:2])) > 1e-3:
+            # The goal base pose is free in 3D with its own arm, but the stowed
+            # footprint is not: the arm must unfold before the goal; handled below.
+            pass
+        reason, message = FailureReason.TIMEOUT, ""
+        for attempt in range(self.config.max_attempts):
+            rng = np.random.default_rng([self.config.seed, attempt])
+            deadline = time.perf_counter() + self.config.attempt_budget_s
+            try:
+                path, reason, message = self._attempt(qs, qg, rng, deadline, timings)
+            except _Timeout:
+                path, reason, message = None, FailureReason.TIMEOUT, "attempt budget exceeded"
+            if path is not None:
+                tr = time.perf_counter()
+                traj = smoothing.time_parametrize(path)
+                timings["refine"] += 1e3 * (time.perf_counter() - tr)
+                timings["total"] = 1e3 * (time.perf_counter() - t0)
+                return PlanResult(True, FailureReason.NONE, traj, timings, attempt + 1, "")
+            if reason == FailureReason.NO_BASE_PATH and "exhausted" in message:
+                break  # deterministic: more attempts cannot help
+        return fail(reason, message, attempt + 1)
+
+    def _attempt(self, qs, qg, rng, deadline, timings):
+        cfg = self.config
+        checker = self.checker
+
+        def check_deadline():
+            if time.perf_counter() > deadline:
+                raise _Timeout()
+
+        tb = time.perf_counter()
+        base_moves = np.hypot(*(qg[:2] - qs[:2])) > 1e-3 or abs(qg[2] - qs[2]) > 1e-3
+        if not base_moves:
+            timings["base"] += 1e3 * (time.perf_counter() - tb)
+            ta = time.perf_counter()
+            arm = self._arm_motion(qs[:3], qs[3:], qg[3:], rng, deadline)
+            timings["arm"] += 1e3 * (time.perf_counter() - ta)
+            if arm is None:
+                return None, FailureReason.NO_ARM_PATH, "no fixed-base arm path"
+            return self._refine([arm], timings, rng, deadline), "", ""
+        hybrid = self._base_planner()
+        base_start, base_goal = qs[:3].copy(), qg[:3].copy()
+        res, why = self._base_path(hybrid, base_start, base_goal, rng, deadline)
+        timings["base"] += 1e3 * (time.perf_counter() - tb)
+        if res is None:
+            if why == "timeout":
+                return None, FailureReason.TIMEOUT, "base search ran out of time"
+            return None, FailureReason.NO_BASE_PATH, why
+        poses = res
+        goal_theta = poses[-1, 2]  # unwrapped heading at the end of the base path
+        qg = qg.copy()
+        qg[2] = goal_theta
+        check_deadline()
+        ta = time.perf_counter()
+        # (a) arm interpolated in sync with the whole base path.
+        Q = self._synchronized(poses, qs[3:], qg[3:])
+        if checker.first_collision(densify(Q, checker)) < 0:
+            timings["arm"] += 1e3 * (time.perf_counter() - ta)
+            return self._refine([Q], timings, rng, deadline), "", ""
+        # (b) fold, travel, unfold.
+        pieces = []
+        fold_k = 0
+        travel_close = np.max(np.abs(qs[3:] - self.travel)) < 1e-6
+        if not travel_close:
+            done = False
+            for f in cfg.fold_fractions:
+                check_deadline()
+                if f <= 0.0:
+                    arm = self._arm_motion(qs[:3], qs[3:], self.travel, rng, deadline)
+                    if arm is not None:
+                        pieces.append(arm)
+                        done = True
+                        break
+                    continue
+                k = self._index_at_fraction(poses, f)
+                Qf = self._synchronized(poses[: k + 1], qs[3:], self.travel)
+                if checker.first_collision(densify(Qf, checker)) < 0:
+                    pieces.append(Qf)
+                    fold_k = k
+                    done = True
+                    break
+            if not done:
+                timings["arm"] += 1e3 * (time.perf_counter() - ta)
+                return None, FailureReason.NO_ARM_PATH, "cannot fold the arm at the start"
+        for f in cfg.placement_fractions:
+            check_deadline()
+            k = max(self._index_at_fraction(poses, f), fold_k)
+            travel_part = self._synchronized(poses[fold_k: k + 1], self.travel, self.travel)
+            if checker.first_collision(densify(travel_part, checker)) >= 0:
+                continue
+            if f >= 1.0 or k >= poses.shape[0] - 1:
+                arm = self._arm_motion(poses[-1], self.travel, qg[3:], rng, deadline)
+                if arm is None:
+                    continue
+                tail = [arm]
+            else:
+                Qu = self._synchronized(poses[k:], self.travel, qg[3:])
+                if checker.first_collision(densify(Qu, checker)) >= 0:
+                    continue
+                tail = [Qu]
+            timings["arm"] += 1e3 * (time.perf_counter() - ta)
+            return self._refine(pieces + [travel_part] + tail, timings, rng, deadline), "", ""
+        timings["arm"] += 1e3 * (time.perf_counter() - ta)
+        return None, FailureReason.NO_ARM_PATH, "no arm connection at any placement along the base path"
+
+    def _base_path(self, hybrid: HybridAStar, a, b, rng, deadline):
+        if np.hypot(*(b[:2] - a[:2])) <= 1e-3:
+            # Pure in-place rotation.
+            d = layout.wrap_angle(b[2] - a[2])
+            n = max(int(math.ceil(abs(d) / 0.05)), 1) + 1
+            th = a[2] + np.linspace(0.0, d, n)
+            return np.column_stack([np.full(n, a[0]), np.full(n, a[1]), th]), ""
+        path, why = hybrid.plan(a, b, deadline)
+        if path is None:
+            return None, why
+        poses = path.poses
+        if path.expansions > 0:
+            poses = hybrid.shortcut(poses, rng, self.config.base_shortcut_iterations)
+        return poses, ""
+
+    @staticmethod
+    def _index_at_fraction(poses: np.ndarray, f: float) -> int:
+        d = np.hypot(*np.diff(poses[:, :2], axis=0).T) + 0.3 * np.abs(np.diff(poses[:, 2]))
+        cum = np.concatenate([[0.0], np.cumsum(d)])
+        if cum[-1] <= 0:
+            return poses.shape[0] - 1
+        return int(np.clip(np.searchsorted(cum, f * cum[-1]), 0, poses.shape[0] - 1))
+
+    @staticmethod
+    def _synchronized(poses: np.ndarray, arm_a: np.ndarray, arm_b: np.ndarray) -> np.ndarray:
+        """Whole-body states (M, 11): base poses with the arm interpolated a->b in
+        proportion to the base's travel time along them."""
+        d = np.diff(poses, axis=0)
+        t = np.maximum(np.hypot(d[:, 0], d[:, 1]) / layout.TRACKER_BASE_V,
+                       np.abs(d[:, 2]) / layout.TRACKER_BASE_W)
+        cum = np.concatenate([[0.0], np.cumsum(t)])
+        s = cum / cum[-1] if cum[-1] > 0 else np.linspace(0.0, 1.0, poses.shape[0])
+        arm = arm_a + s[:, None] * (arm_b - arm_a)
+        return np.concatenate([poses, arm], axis=1)
+
+    def _arm_motion(self, base: np.ndarray, arm_a: np.ndarray, arm_b: np.ndarray, rng, deadline):
+        """A fixed-base torso+arm path as whole-body states (N, 11), or None."""
+        checker = self.checker
+        base = np.asarray(base, float)
+
+        def full(a):
+            return np.concatenate([base, a])
+
+        def motion_free(a, b):
+            return checker.motion_free(full(a), full(b))
+
+        lo = layout.SAMPLE_LOWER[3:]
+        hi = layout.SAMPLE_UPPER[3:]
+        # Continuous joints: sample around the start so paths stay unwrapped.
+        c = layout.IS_CONTINUOUS[3:]
+        lo = np.where(c, arm_a - np.pi, lo)
+        hi = np.where(c, arm_a + np.pi, hi)
+        w = np.where(np.arange(8) == 0, 5.0, 1.0)  # torso metres weigh more
+        path, why = rrt_connect(arm_a, arm_b, motion_free, lo, hi, rng,
+                                RRTConnectConfig(step=self.config.rrt_step,
+                                                 max_iterations=self.config.rrt_max_iterations),
+                                deadline, w)
+        if path is None:
+            if why == "timeout":
+                raise _Timeout()
+            return None
+        if path.shape[0] > 2:
+            path = smoothing.shortcut(path, motion_free, rng, self.config.arm_shortcut_iterations)
+        return np.concatenate([np.broadcast_to(base, (path.shape[0], 3)), path], axis=1)
+
+    def _refine(self, pieces: list[np.ndarray], timings, rng, deadline) -> np.ndarray | None:
+        """Smooths fixed-base pieces, joins, densifies and re-validates."""
+        tr = time.perf_counter()
+        checker = self.checker
+        out = []
+        for P in pieces:
+            fixed_base = np.all(np.abs(P[:, :3] - P[0, :3]) < 1e-12)
+            if fixed_base and P.shape[0] > 2 and time.perf_counter() < deadline:
+                P = smoothing.smooth_if_free(
+                    P, lambda S: checker.first_collision(densify(S, checker)) < 0,
+                    self.config.bspline_samples)
+            out.append(P if not out else P[1:])
+        path = np.concatenate(out)
+        dense = densify(path, checker)
+        ok = checker.first_collision(dense) < 0
+        timings["refine"] += 1e3 * (time.perf_counter() - tr)
+        if not ok:  # cannot happen for validated pieces; be safe, never return it
+            raise _Timeout()
+        return dense
