@@ -1,0 +1,128 @@
+"""The world diagram: builds, steps, renders depth, and judges episodes."""
+
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+
+from scenes import box_room_scenario, table
+from vamg_drake.diagram import DiagramConfig, build_diagram
+from vamg_drake.robot.kinematics import FetchKinematics
+from vamg_drake.world.episode_monitor import COLLISION, RUNNING, SUCCESS, TIMEOUT, Contact, EpisodeJudge
+from vamg_drake.world.scenario import Box, Furniture, Part, PlanarPose
+
+
+def _simulate(scenario, t, config=None):
+    ed = build_diagram(scenario, config or DiagramConfig())
+    sim = Simulator(ed.diagram)
+    sim.Initialize()
+    status = sim.AdvanceTo(t)
+    return ed, sim, status
+
+
+def _eval(system, port, sim):
+    return system.GetOutputPort(port).Eval(system.GetMyContextFromRoot(sim.get_context()))
+
+
+def test_diagram_builds_and_steps():
+    ed, sim, _ = _simulate(box_room_scenario(), 1.0)
+    sim.AdvanceTo(1.0 + 1e-4)  # process the 10 Hz camera sample at t = 1.0
+    V = _eval(ed.robot_state, "configuration", sim)
+    assert V.shape == (15,) and np.all(np.isfinite(V))
+    assert V[0] > -1.5 + 0.2  # the scripted driver moved the base forward
+    frame = _eval(ed.depth, "depth_frame", sim)
+    assert frame.time == pytest.approx(1.0) and frame.depth.shape == (240, 320)
+    # The sensor's pose is the model's head camera pose (pan/tilt included).
+    np.testing.assert_allclose(
+        frame.X_WC, FetchKinematics.instance().camera_pose(V[:11], V[11], V[12]), atol=0.012  # one 10 ms plant step apart
+    )
+
+
+def test_depth_of_a_box_at_known_distance():
+    scenario = box_room_scenario()
+    scenario.dynamic_events = []
+    # A tall cabinet face at x = 1.5 straight ahead of the robot at x = -0.5.
+    cabinet = Furniture("cabinet_0", "cabinet", PlanarPose(1.8, 0.0, 0.0), [Part("body", Box([0.6, 1.5, 2.0]), [0, 0, 1.0])])
+    scenario.furniture = [cabinet, table("table_0", 2.6, 1.8)]
+    scenario.objects[0].xyz = [2.6, 1.8, 0.80]
+    scenario.robot_start = PlanarPose(-0.5, 0.0, 0.0)
+    config = DiagramConfig(waypoints=[[-0.5, 0.0]])
+    config.scripted.head_pan_amplitude = 0.0
+    config.scripted.head_tilt = 0.0
+    ed, sim, _ = _simulate(scenario, 0.0, config)
+    frame = _eval(ed.depth, "depth_frame", sim)
+    X_WC = frame.X_WC
+    h, w = frame.depth.shape
+    expected = 1.5 - X_WC[0, 3]  # optical axis along +x at head tilt 0
+    centre = frame.depth[h // 2 - 2 : h // 2 + 2, w // 2 - 2 : w // 2 + 2]
+    assert np.all(np.abs(centre - expected) < 0.01), (centre, expected)
+
+
+def test_driving_into_a_wall_is_a_collision_at_the_right_time():
+    scenario = box_room_scenario(time_limit=10.0)
+    scenario.robot_start = PlanarPose(0.0, -1.5, 0.0)
+    config = DiagramConfig(waypoints=[[6.0, -1.5]])  # through the wall at x = 3
+    ed, sim, status = _simulate(scenario, 10.0, config)
+    outcome = _eval(ed.monitor, "outcome", sim)
+    assert outcome.status == COLLISION and "wall" in outcome.detail
+    # Base radius 0.29 m: contact when the base centre reaches x = 2.71 at 0.5 m/s.
+    assert outcome.time == pytest.approx(2.71 / 0.5, abs=0.2)
+    assert status.reason() == status.ReturnReason.kReachedTerminationCondition
+
+
+def test_pedestrian_appears_at_trigger_distance():
+    scenario = box_room_scenario(with_pedestrian=True)
+    ed, sim, _ = _simulate(scenario, 1.5)
+    events = _eval(ed.obstacles, "events", sim)
+    t = events.time_of("pedestrian")
+    # The robot starts 2.0 m away at 0.5 m/s: inside 1.7 m after ~0.6 s.
+    assert t is not None and 0.5 <= t <= 0.8
+    plant = ed.world.plant
+    p = plant.EvalBodyPoseInWorld(plant.GetMyContextFromRoot(sim.get_context()), ed.world.scene.obstacles["pedestrian"].body)
+    np.testing.assert_allclose(p.translation(), [0.5, 0.0, 0.85], atol=0.02)
+
+
+def test_judge_success_needs_lift_held_two_seconds():
+    judge = EpisodeJudge(target_rest_height=0.8, time_limit=30.0)
+    t = 0.0
+    for _ in range(20):  # lifted 12 cm for 1 s, then dropped
+        assert judge.update(t, [], 0.92, True).status == RUNNING
+        t += 0.05
+    judge.update(t, [], 0.85, True)
+    t += 0.05
+    times = []
+    while judge.outcome.status == RUNNING:
+        judge.update(t, [], 0.93, True)
+        times.append(t)
+        t += 0.05
+    assert judge.outcome.status == SUCCESS
+    assert judge.outcome.time - times[0] == pytest.approx(2.0, abs=1e-6)
+
+
+def test_judge_collision_rules():
+    palm_on_target = Contact("gripper_link", "tomato_soup_can", True, False, 0.002)
+    finger = Contact("l_gripper_finger_link", "table_0", False, False, 0.002)
+    elbow = Contact("elbow_flex_link", "table_0", False, False, 0.002)
+    judge = EpisodeJudge(0.8, 30.0)
+    assert judge.update(0.0, [finger], 0.8, False).status == RUNNING
+    assert judge.update(0.1, [palm_on_target], 0.8, True).status == RUNNING
+    assert judge.update(0.2, [elbow], 0.8, True).status == COLLISION
+    judge = EpisodeJudge(0.8, 30.0)
+    assert judge.update(0.0, [palm_on_target], 0.8, False).status == COLLISION
+    judge = EpisodeJudge(0.8, 1.0)
+    assert judge.update(1.0, [], 0.8, False).status == TIMEOUT
+
+
+def test_missing_rendering_library_names_the_package(monkeypatch):
+    import ctypes.util
+
+    from vamg_drake import rendering_check
+
+    real = ctypes.util.find_library
+    monkeypatch.setattr(ctypes.util, "find_library", lambda name: None if name == "EGL" else real(name))
+    with pytest.raises(rendering_check.RenderingLibrariesMissing, match="libegl1"):
+        rendering_check.check_rendering_libraries()
+
+
+def test_unknown_policy_is_a_clear_error():
+    with pytest.raises(ValueError, match="unknown policy 'nope'"):
+        build_diagram(box_room_scenario(), DiagramConfig(policy="nope"))

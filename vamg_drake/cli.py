@@ -1,0 +1,99 @@
+"""The `vamg` command (also `python -m vamg_drake.cli`).
+
+    vamg run [--scenario FILE | --seed N] [--out DIR] [--policy NAME] [--time-limit S]
+    vamg scenario generate --seed N --out FILE
+    vamg maps build            (kinematic maps, when the policy package provides them)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+from vamg_drake.rendering_check import check_rendering_libraries
+
+
+def _load_or_generate(args) -> "Scenario":  # noqa: F821
+    from vamg_drake.world.scenario import ScenarioError, load_scenario
+
+    if args.scenario:
+        try:
+            return load_scenario(args.scenario)
+        except (ScenarioError, FileNotFoundError) as e:
+            raise SystemExit(f"vamg: {e}") from None
+    from vamg_drake.world.rooms import generate_scenario
+
+    return generate_scenario(args.seed)
+
+
+def _cmd_run(args) -> int:
+    from vamg_drake.diagram import POLICIES, DiagramConfig
+    from vamg_drake.episode import run_episode
+
+    if args.policy not in POLICIES:
+        raise SystemExit(f"vamg run: unknown --policy '{args.policy}' (known: {', '.join(POLICIES)})")
+    check_rendering_libraries()
+    scenario = _load_or_generate(args)
+    if args.time_limit is not None:
+        scenario.time_limit = args.time_limit
+    config = DiagramConfig(policy=args.policy)
+    result = run_episode(scenario, config, out_dir=args.out, record=not args.no_replay, progress=not args.quiet)
+    print(json.dumps({k: v for k, v in result.__dict__.items() if k != "timings"}))
+    return 0
+
+
+def _cmd_scenario_generate(args) -> int:
+    from vamg_drake.world.rooms import generate_scenario
+    from vamg_drake.world.scenario import save_scenario
+
+    scenario = generate_scenario(args.seed)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    save_scenario(scenario, out)
+    print(f"wrote {out}: {scenario.name}, {len(scenario.furniture)} furniture, {len(scenario.objects)} objects, target {scenario.target}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="vamg", description="Visibility-aware mobile grasping (Drake).")
+    parser.add_argument("-v", "--verbose", action="store_true")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    run = sub.add_parser("run", help="run one episode headless")
+    src = run.add_mutually_exclusive_group()
+    src.add_argument("--scenario", help="scenario YAML file")
+    src.add_argument("--seed", type=int, default=0, help="generate the scenario from this seed (default 0)")
+    run.add_argument("--out", default="runs/demo", help="output directory (episode.json, replay.html, topdown.png)")
+    run.add_argument("--policy", default="scripted", help="policy: scripted")
+    run.add_argument("--time-limit", type=float, default=None, help="override the scenario's time limit [s]")
+    run.add_argument("--no-replay", action="store_true", help="skip the Meshcat recording")
+    run.add_argument("--quiet", action="store_true", help="no progress bar")
+    run.set_defaults(func=_cmd_run)
+
+    scenario = sub.add_parser("scenario", help="scenario tools")
+    scenario_sub = scenario.add_subparsers(dest="scenario_command", required=True)
+    gen = scenario_sub.add_parser("generate", help="generate a procedural room scenario")
+    gen.add_argument("--seed", type=int, required=True)
+    gen.add_argument("--out", required=True)
+    gen.set_defaults(func=_cmd_scenario_generate)
+
+    try:
+        from vamg_drake.policy.maps_cli import add_maps_subparser
+    except ImportError:
+        pass
+    else:
+        add_maps_subparser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

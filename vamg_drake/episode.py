@@ -1,0 +1,133 @@
+"""Running one episode headless: simulate, judge, and write the results.
+
+`run_episode` writes into its output directory:
+* `episode.json` — outcome, sim and wall time, base path length, per-module timings;
+* `replay.html` — a self-contained Meshcat recording (open it in a browser);
+* `topdown.png` — the room, furniture, target and the robot's path.
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import json
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+from pydrake.systems.analysis import Simulator
+from tqdm import tqdm
+
+from vamg_drake.diagram import DiagramConfig, build_diagram
+from vamg_drake.world.episode_monitor import TIMEOUT, EpisodeOutcome
+from vamg_drake.world.scenario import Scenario
+from vamg_drake.world.topdown import plot_topdown
+
+log = logging.getLogger(__name__)
+
+
+@dc.dataclass
+class EpisodeResult:
+    """What one episode produced (episode.json)."""
+
+    scenario: str
+    seed: int
+    policy: str
+    status: str
+    detail: str
+    sim_time: float
+    wall_time: float
+    real_time_factor: float
+    path_length: float
+    depth_frames: int
+    timings: dict
+    outputs: dict = dc.field(default_factory=dict)
+
+    def to_json(self) -> str:
+        return json.dumps(dc.asdict(self), indent=2)
+
+
+def _start_meshcat():
+    from pydrake.geometry import StartMeshcat
+
+    try:
+        return StartMeshcat()
+    except Exception as e:  # noqa: BLE001  (no free port, sandbox, ...)
+        log.warning("Meshcat unavailable, no replay.html: %s", e)
+        return None
+
+
+def run_episode(
+    scenario: Scenario,
+    config: DiagramConfig | None = None,
+    out_dir: str | Path | None = None,
+    record: bool = True,
+    progress: bool = True,
+    chunk: float = 0.1,
+) -> EpisodeResult:
+    """Simulates `scenario` until the monitor ends it (or its time limit)."""
+    config = config or DiagramConfig()
+    out = Path(out_dir) if out_dir else None
+    if out:
+        out.mkdir(parents=True, exist_ok=True)
+    meshcat = _start_meshcat() if (record and out) else None
+    ed = build_diagram(scenario, config, meshcat=meshcat)
+    simulator = Simulator(ed.diagram)
+    context = simulator.get_mutable_context()
+    if ed.visualizer is not None:
+        ed.visualizer.StartRecording(set_transforms_while_recording=False)
+    robot_ctx = ed.robot_state.GetMyContextFromRoot(context)
+    monitor_ctx = ed.monitor.GetMyContextFromRoot(context)
+    path = []
+    wall0 = time.perf_counter()
+    simulator.Initialize()
+    t_end = scenario.time_limit + chunk
+    bar = tqdm(
+        total=round(scenario.time_limit, 1),
+        disable=not progress,
+        desc=scenario.name,
+        leave=False,
+        bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} sim s [{elapsed}<{remaining}]",
+    )
+    outcome = EpisodeOutcome()
+    while context.get_time() < t_end:
+        t_next = min(context.get_time() + chunk, t_end)
+        status = simulator.AdvanceTo(t_next)
+        path.append(ed.robot_state.GetOutputPort("configuration").Eval(robot_ctx)[:3].copy())
+        bar.update(round(chunk, 3))
+        outcome = ed.monitor.GetOutputPort("outcome").Eval(monitor_ctx)
+        if outcome.done or status.reason() == status.ReturnReason.kReachedTerminationCondition:
+            break
+    bar.close()
+    wall = time.perf_counter() - wall0
+    if not outcome.done:
+        outcome = EpisodeOutcome(TIMEOUT, context.get_time(), "time limit reached")
+    path = np.array(path)
+    length = float(np.sum(np.linalg.norm(np.diff(path[:, :2], axis=0), axis=1))) if len(path) > 1 else 0.0
+    sim_time = context.get_time()
+    result = EpisodeResult(
+        scenario=scenario.name,
+        seed=scenario.seed,
+        policy=config.policy,
+        status=outcome.status,
+        detail=outcome.detail,
+        sim_time=sim_time,
+        wall_time=wall,
+        real_time_factor=sim_time / wall if wall > 0 else float("nan"),
+        path_length=length,
+        depth_frames=ed.timings.summary().get("depth_render", {}).get("count", 0),
+        timings=ed.timings.summary(),
+    )
+    if out:
+        topdown = out / "topdown.png"
+        plot_topdown(scenario, path, topdown, title=f"{scenario.name}: {outcome.status} at {outcome.time:.1f} s")
+        result.outputs["topdown"] = str(topdown)
+        if ed.visualizer is not None and meshcat is not None:
+            ed.visualizer.StopRecording()
+            ed.visualizer.PublishRecording()
+            replay = out / "replay.html"
+            replay.write_text(meshcat.StaticHtml())
+            result.outputs["replay"] = str(replay)
+        (out / "episode.json").write_text(result.to_json())
+        result.outputs["episode"] = str(out / "episode.json")
+    return result

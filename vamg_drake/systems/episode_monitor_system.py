@@ -1,0 +1,88 @@
+"""EpisodeMonitor: the LeafSystem adapter of `EpisodeJudge`."""
+
+from __future__ import annotations
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import QueryObject
+from pydrake.systems.framework import EventStatus, LeafSystem
+
+from vamg_drake.world.episode_monitor import Contact, EpisodeJudge, EpisodeMonitorConfig, EpisodeOutcome
+from vamg_drake.world.world_builder import World
+
+
+class EpisodeMonitor(LeafSystem):
+    """Watches the world for collision, success and the time limit.
+
+    Input ports:
+        query_object: the scene graph's query object.
+        plant_state: the plant's state.
+        gripper_command: the commanded opening (closing starts the grasp).
+    Output ports:
+        outcome: `EpisodeOutcome` (AbstractValue).
+
+    When the outcome becomes final, the monitor's `done` event returns
+    `EventStatus.ReachedTermination` so `Simulator.AdvanceTo` stops.
+    """
+
+    def __init__(self, world: World, time_limit: float, config: EpisodeMonitorConfig | None = None):
+        super().__init__()
+        self.config = config or EpisodeMonitorConfig()
+        self._world = world
+        plant = world.plant
+        self._plant_context = plant.CreateDefaultContext()
+        target = world.scene.target_body
+        rest = plant.EvalBodyPoseInWorld(self._plant_context, target).translation()[2]
+        self.judge = EpisodeJudge(rest, time_limit, self.config)
+        self._target = target
+        inspector = world.scene_graph.model_inspector()
+        self._robot_link: dict = {}
+        self._names: dict = {}
+        self._owner_is_robot: dict = {}
+        self._owner_is_target: dict = {}
+        for gid in inspector.GetAllGeometryIds():
+            body = plant.GetBodyFromFrameId(inspector.GetFrameId(gid))
+            if body is None:
+                continue
+            self._names[gid] = body.name()
+            self._owner_is_robot[gid] = body.model_instance() == world.robot
+            self._owner_is_target[gid] = body.index() == target.index()
+        self.DeclareAbstractInputPort("query_object", AbstractValue.Make(QueryObject()))
+        self.DeclareVectorInputPort("plant_state", plant.num_multibody_states())
+        self.DeclareVectorInputPort("gripper_command", 1)
+        self._outcome = self.DeclareAbstractState(AbstractValue.Make(EpisodeOutcome()))
+        self._grasp_started = self.DeclareAbstractState(AbstractValue.Make(False))
+        self.DeclarePeriodicUnrestrictedUpdateEvent(self.config.period, 0.0, self._tick)
+        self.DeclareStateOutputPort("outcome", self._outcome)
+        self.min_gripper_command = np.inf
+
+    def _tick(self, context, state) -> EventStatus:
+        query: QueryObject = self.get_input_port(0).Eval(context)
+        x = self.get_input_port(1).Eval(context)
+        opening = float(self.get_input_port(2).Eval(context)[0])
+        grasp_started = bool(context.get_abstract_state(self._grasp_started).get_value()) or opening < 0.09
+        plant = self._world.plant
+        plant.SetPositionsAndVelocities(self._plant_context, x)
+        target_height = plant.EvalBodyPoseInWorld(self._plant_context, self._target).translation()[2]
+        contacts = []
+        for pair in query.ComputePointPairPenetration():
+            a, b = pair.id_A, pair.id_B
+            if not (self._owner_is_robot.get(a) or self._owner_is_robot.get(b)):
+                continue
+            if not self._owner_is_robot.get(a):
+                a, b = b, a
+            contacts.append(
+                Contact(
+                    robot_link=self._names[a],
+                    other=self._names.get(b, "?"),
+                    other_is_target=bool(self._owner_is_target.get(b)),
+                    other_is_robot=bool(self._owner_is_robot.get(b)),
+                    depth=pair.depth,
+                )
+            )
+        outcome = self.judge.update(context.get_time(), contacts, target_height, grasp_started)
+        state.get_mutable_abstract_state(self._outcome).set_value(outcome)
+        state.get_mutable_abstract_state(self._grasp_started).set_value(grasp_started)
+        if outcome.done:
+            return EventStatus.ReachedTermination(self, f"episode ended: {outcome.status} ({outcome.detail})")
+        return EventStatus.Succeeded()

@@ -1,0 +1,99 @@
+"""RobotCommandIntegrator: velocity commands -> PD targets for the Fetch's actuators."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from pydrake.systems.framework import BasicVector, LeafSystem
+
+from vamg_drake.robot import layout
+from vamg_drake.robot.kinematics import FINGER_SLICE, HEAD_SLICE, NX
+
+#: Sizes of the command ports.
+BASE_VELOCITY_SIZE = 2  # (v [m/s], w [rad/s]) in the base frame
+JOINT_VELOCITY_SIZE = 8  # torso + 7 arm joints
+HEAD_COMMAND_SIZE = 2  # (pan, tilt) position targets
+GRIPPER_COMMAND_SIZE = 1  # opening between the fingers [m]
+
+
+def integrate_command(
+    V: np.ndarray, base_velocity: np.ndarray, joint_velocity: np.ndarray, head: np.ndarray, opening: float, dt: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """One step of the desired extended configuration V (15,) under the commands.
+
+    Commands are clamped to the tracker limits (layout), positions to the joint
+    limits; head and fingers move towards their targets at their rate limits.
+
+    Returns:
+        (V_next, Vdot) the next desired configuration and its velocity.
+    """
+    V = V.copy()
+    Vdot = np.zeros(NX)
+    v = float(np.clip(base_velocity[0], -layout.TRACKER_BASE_V, layout.TRACKER_BASE_V))
+    w = float(np.clip(base_velocity[1], -layout.TRACKER_BASE_W, layout.TRACKER_BASE_W))
+    theta_mid = V[layout.THETA] + 0.5 * w * dt
+    Vdot[0] = v * math.cos(theta_mid)
+    Vdot[1] = v * math.sin(theta_mid)
+    Vdot[layout.THETA] = w
+    qdot = np.clip(joint_velocity, -layout.V_MAX[layout.TORSO_ARM], layout.V_MAX[layout.TORSO_ARM])
+    Vdot[layout.TORSO_ARM] = qdot
+    head_target = np.clip(head, [layout.HEAD_PAN_LIMITS[0], layout.HEAD_TILT_LIMITS[0]],
+                          [layout.HEAD_PAN_LIMITS[1], layout.HEAD_TILT_LIMITS[1]])
+    Vdot[HEAD_SLICE] = np.clip((head_target - V[HEAD_SLICE]) / dt, -layout.HEAD_VELOCITY, layout.HEAD_VELOCITY)
+    finger_target = np.clip(0.5 * opening, *layout.FINGER_LIMITS)
+    Vdot[FINGER_SLICE] = np.clip((finger_target - V[FINGER_SLICE]) / dt, -layout.FINGER_VELOCITY, layout.FINGER_VELOCITY)
+    V_next = V + Vdot * dt
+    # Joint limits: stop at the limit (and zero the rate there).
+    lo = np.r_[layout.Q_LOWER, layout.HEAD_PAN_LIMITS[0], layout.HEAD_TILT_LIMITS[0], layout.FINGER_LIMITS[0], layout.FINGER_LIMITS[0]]
+    hi = np.r_[layout.Q_UPPER, layout.HEAD_PAN_LIMITS[1], layout.HEAD_TILT_LIMITS[1], layout.FINGER_LIMITS[1], layout.FINGER_LIMITS[1]]
+    clipped = np.clip(V_next, lo, hi)
+    Vdot[clipped != V_next] = 0.0
+    return clipped, Vdot
+
+
+class RobotCommandIntegrator(LeafSystem):
+    """Integrates velocity commands into the robot's PD desired state.
+
+    Input ports:
+        base_velocity: (v, w) unicycle command in the base frame.
+        joint_velocity: torso and 7 arm joint rates.
+        head_command: (pan, tilt) position targets.
+        gripper_command: finger opening target [m] (0 closed, 0.1 open).
+    Output ports:
+        desired_state: [q_d, v_d] for the robot's actuators, in actuator order.
+        desired_configuration: the extended desired configuration (15,).
+    """
+
+    def __init__(self, initial_configuration: np.ndarray, actuator_joint_order: np.ndarray, period: float = 0.01):
+        super().__init__()
+        self._order = np.asarray(actuator_joint_order, dtype=int)
+        self._period = period
+        self.DeclareVectorInputPort("base_velocity", BASE_VELOCITY_SIZE)
+        self.DeclareVectorInputPort("joint_velocity", JOINT_VELOCITY_SIZE)
+        self.DeclareVectorInputPort("head_command", HEAD_COMMAND_SIZE)
+        self.DeclareVectorInputPort("gripper_command", GRIPPER_COMMAND_SIZE)
+        V0 = np.asarray(initial_configuration, dtype=float)
+        self._state = self.DeclareDiscreteState(np.r_[V0, np.zeros(NX)])
+        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
+        self.DeclareVectorOutputPort("desired_state", 2 * len(self._order), self._calc_desired_state)
+        self.DeclareVectorOutputPort("desired_configuration", NX, self._calc_configuration)
+
+    def _update(self, context, discrete_state) -> None:
+        x = context.get_discrete_state(self._state).get_value()
+        V_next, Vdot = integrate_command(
+            x[:NX],
+            self.get_input_port(0).Eval(context),
+            self.get_input_port(1).Eval(context),
+            self.get_input_port(2).Eval(context),
+            float(self.get_input_port(3).Eval(context)[0]),
+            self._period,
+        )
+        discrete_state.get_mutable_vector(self._state).SetFromVector(np.r_[V_next, Vdot])
+
+    def _calc_desired_state(self, context, output: BasicVector) -> None:
+        x = context.get_discrete_state(self._state).get_value()
+        output.SetFromVector(np.r_[x[:NX][self._order], x[NX:][self._order]])
+
+    def _calc_configuration(self, context, output: BasicVector) -> None:
+        output.SetFromVector(context.get_discrete_state(self._state).get_value()[:NX])

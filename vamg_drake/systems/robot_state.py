@@ -1,0 +1,30 @@
+"""RobotStateSelector: the robot's extended configuration and rates from the plant state."""
+
+from __future__ import annotations
+
+import numpy as np
+from pydrake.systems.framework import BasicVector, LeafSystem
+
+from vamg_drake.robot.kinematics import NX
+
+
+class RobotStateSelector(LeafSystem):
+    """Input: plant_state (full). Outputs: configuration (15,), velocity (15,).
+
+    Both in `kinematics.EXTENDED_JOINTS` order: q (11), head (2), fingers (2).
+    """
+
+    def __init__(self, num_positions: int, num_velocities: int, position_index: np.ndarray, velocity_index: np.ndarray):
+        super().__init__()
+        self._nq = num_positions
+        self._qi = np.asarray(position_index, dtype=int)
+        self._vi = np.asarray(velocity_index, dtype=int)
+        self.DeclareVectorInputPort("plant_state", num_positions + num_velocities)
+        self.DeclareVectorOutputPort("configuration", NX, self._calc_q)
+        self.DeclareVectorOutputPort("velocity", NX, self._calc_v)
+
+    def _calc_q(self, context, output: BasicVector) -> None:
+        output.SetFromVector(self.get_input_port(0).Eval(context)[self._qi])
+
+    def _calc_v(self, context, output: BasicVector) -> None:
+        output.SetFromVector(self.get_input_port(0).Eval(context)[self._nq + self._vi])
