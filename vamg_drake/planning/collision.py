@@ -31,6 +31,7 @@ checked states is free as well.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numba
@@ -515,8 +516,18 @@ def _sphere_centers(Q, head, parent, X_PJ, joint_type, axis, var_index, sph_link
     return out
 
 
+@functools.lru_cache(maxsize=4096)
 def bisection_order(n: int) -> np.ndarray:
-    """Indices 0..n-1 in coarse-to-fine order (endpoints first, then midpoints)."""
+    """Indices 0..n-1 in coarse-to-fine order (endpoints first, then midpoints).
+
+    Cached per n; the returned array is read-only.
+    """
+    out = _bisection_order(n)
+    out.flags.writeable = False
+    return out
+
+
+def _bisection_order(n: int) -> np.ndarray:
     if n <= 2:
         return np.arange(n, dtype=np.int64)
     order = [0, n - 1]

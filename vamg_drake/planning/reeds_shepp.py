@@ -321,34 +321,28 @@ def path_length(start: np.ndarray, goal: np.ndarray, radius: float) -> float:
 @numba.njit(cache=True)
 def sample_path(start: np.ndarray, types: np.ndarray, lengths: np.ndarray,
                 radius: float, step: float) -> np.ndarray:
-    """Poses (M, 3) along a path at arc-length spacing <= step [m], both ends included.
+    """Poses (M, 3) along a path at arc-length spacing <= step [m].
 
-    Theta is continuous (not wrapped) along the path.
+    Both ends and every segment junction (cusps included) are samples; theta
+    is continuous (not wrapped) along the path.
     """
-    total = 0.0
+    counts = np.zeros(5, dtype=np.int64)
+    n = 1
     for i in range(5):
-        if types[i] != _NONE:
-            total += abs(lengths[i]) * radius
-    n = max(int(math.ceil(total / step)), 1) + 1
+        if types[i] != _NONE and abs(lengths[i]) > 0.0:
+            counts[i] = max(int(math.ceil(abs(lengths[i]) * radius / step)), 1)
+            n += counts[i]
     out = np.empty((n, 3))
-    ds = total / (n - 1) if n > 1 else 0.0
-    # Walk through segments, evaluating closed-form poses at each sample.
     x0, y0, th0 = start[0], start[1], start[2]
-    seg = 0
-    seg_start = 0.0
-    for k in range(n):
-        s = k * ds
-        # advance to the segment containing s (integrating whole segments)
-        while seg < 5 and types[seg] != _NONE and s > seg_start + abs(lengths[seg]) * radius + 1e-12:
-            x0, y0, th0 = _advance(x0, y0, th0, types[seg], lengths[seg], radius)
-            seg_start += abs(lengths[seg]) * radius
-            seg += 1
-        if seg < 5 and types[seg] != _NONE:
-            frac = (s - seg_start) / radius
-            sign = 1.0 if lengths[seg] >= 0 else -1.0
-            out[k, 0], out[k, 1], out[k, 2] = _advance(x0, y0, th0, types[seg], sign * frac, radius)
-        else:
-            out[k, 0], out[k, 1], out[k, 2] = x0, y0, th0
+    out[0, 0], out[0, 1], out[0, 2] = x0, y0, th0
+    k = 1
+    for i in range(5):
+        if counts[i] == 0:
+            continue
+        for j in range(1, counts[i] + 1):
+            out[k, 0], out[k, 1], out[k, 2] = _advance(x0, y0, th0, types[i], lengths[i] * j / counts[i], radius)
+            k += 1
+        x0, y0, th0 = out[k - 1, 0], out[k - 1, 1], out[k - 1, 2]
     return out
 
 
