@@ -169,3 +169,15 @@ def test_move_along_path_positions():
     np.testing.assert_allclose(event.position_at(1.0 + 4.5 / 0.5), [1.5, 0, 1])  # on the way back (path length 3)
     event.loop = False
     np.testing.assert_allclose(event.position_at(100.0), [2, 1, 1])
+
+
+def test_readme_example_loads():
+    import re
+
+    readme = Path(__file__).parents[1] / "vamg_drake" / "world" / "README.md"
+    example = re.findall(r"```yaml\n(.*?)```", readme.read_text(), re.S)[0]
+    from vamg_drake.world.scenario import scenario_from_yaml
+
+    scenario = scenario_from_yaml(example, "README.md")
+    assert [type(e) for e in scenario.dynamic_events] == [AppearAtDistance, AppearAtPhase, MoveAlongPath]
+    np.testing.assert_allclose(scenario.target_point(), [4.5, 1.5, 0.793])

@@ -25,6 +25,18 @@ _METAL = [0.45, 0.45, 0.48, 1.0]
 AGAINST_WALL = ("counter", "shelf", "sofa", "cabinet")
 
 
+def _furniture(name: str, kind: str, parts: list[Part]) -> Furniture:
+    """Returns the furniture with dimensions rounded to 1e-5 m (exact, readable YAML)."""
+    for part in parts:
+        part.xyz = [round(float(v), 5) for v in part.xyz]
+        if isinstance(part.shape, Box):
+            part.shape.size = [round(float(v), 5) for v in part.shape.size]
+        else:
+            part.shape.radius = round(float(part.shape.radius), 5)
+            part.shape.length = round(float(part.shape.length), 5)
+    return Furniture(name=name, kind=kind, parts=parts)
+
+
 def _box(name, size, xyz, rgba, support=False) -> Part:
     return Part(name=name, shape=Box([float(s) for s in size]), xyz=[float(v) for v in xyz], support=support, rgba=list(rgba))
 
@@ -39,24 +51,24 @@ def table(name: str, length: float, width: float, height: float, round_top: bool
             Part(name="pedestal", shape=Cylinder(0.06, height - t), xyz=[0.0, 0.0, 0.5 * (height - t)], rgba=list(_METAL)),
             Part(name="foot", shape=Cylinder(0.3 * radius + 0.1, 0.03), xyz=[0.0, 0.0, 0.015], rgba=list(_METAL)),
         ]
-        return Furniture(name=name, kind="table", parts=parts)
+        return _furniture(name, "table", parts)
     leg = 0.05
     parts = [_box("top", [length, width, t], [0, 0, height - 0.5 * t], _WOOD, support=True)]
     for i, (sx, sy) in enumerate([(-1, -1), (1, -1), (1, 1), (-1, 1)]):
         x = sx * (0.5 * length - leg)
         y = sy * (0.5 * width - leg)
         parts.append(_box(f"leg_{i}", [leg, leg, height - t], [x, y, 0.5 * (height - t)], _DARK_WOOD))
-    return Furniture(name=name, kind="table", parts=parts)
+    return _furniture(name, "table", parts)
 
 
 def counter(name: str, length: float, depth: float, height: float) -> Furniture:
     """A kitchen counter: a cabinet body with a stone top slab (support) overhanging the front."""
     t = 0.04
     overhang = 0.03
-    return Furniture(
-        name=name,
-        kind="counter",
-        parts=[
+    return _furniture(
+        name,
+        "counter",
+        [
             _box("body", [length, depth - overhang, height - t], [0, 0.5 * overhang, 0.5 * (height - t)], _WHITE),
             _box("top", [length, depth, t], [0, 0, height - 0.5 * t], _STONE, support=True),
         ],
@@ -66,10 +78,10 @@ def counter(name: str, length: float, depth: float, height: float) -> Furniture:
 def cabinet(name: str, length: float, depth: float, height: float) -> Furniture:
     """A closed cabinet (sideboard, dresser) whose top is a support."""
     t = 0.03
-    return Furniture(
-        name=name,
-        kind="cabinet",
-        parts=[
+    return _furniture(
+        name,
+        "cabinet",
+        [
             _box("body", [length, depth, height - t], [0, 0, 0.5 * (height - t)], _DARK_WOOD),
             _box("top", [length, depth, t], [0, 0, height - 0.5 * t], _WOOD, support=True),
         ],
@@ -91,7 +103,7 @@ def shelf(name: str, length: float, depth: float, height: float, levels: int) ->
         is_top = k == levels - 1
         width = length if is_top else length - 2 * t
         parts.append(_box("top" if is_top else f"board_{k}", [width, depth, t], [0, 0, z_top - 0.5 * t], _WOOD, support=is_top))
-    return Furniture(name=name, kind="shelf", parts=parts)
+    return _furniture(name, "shelf", parts)
 
 
 def chair(name: str, seat: float = 0.45, seat_height: float = 0.45, back_height: float = 0.9) -> Furniture:
@@ -103,17 +115,17 @@ def chair(name: str, seat: float = 0.45, seat_height: float = 0.45, back_height:
         parts.append(_box(f"leg_{i}", [leg, leg, seat_height - t], [sx * (0.5 * seat - leg), sy * (0.5 * seat - leg), 0.5 * (seat_height - t)], _DARK_WOOD))
     rest = back_height - seat_height
     parts.append(_box("back", [seat, t, rest], [0, 0.5 * (seat - t), seat_height + 0.5 * rest], _WOOD))
-    return Furniture(name=name, kind="chair", parts=parts)
+    return _furniture(name, "chair", parts)
 
 
 def sofa(name: str, length: float, depth: float = 0.85) -> Furniture:
     """A sofa: base, seat cushion, back (at +y) and two arms."""
     arm = 0.18
     back = 0.2
-    return Furniture(
-        name=name,
-        kind="sofa",
-        parts=[
+    return _furniture(
+        name,
+        "sofa",
+        [
             _box("base", [length, depth, 0.25], [0, 0, 0.125], _FABRIC),
             _box("cushion", [length - 2 * arm, depth - back, 0.17], [0, -0.5 * back, 0.335], _FABRIC),
             _box("back", [length, back, 0.55], [0, 0.5 * (depth - back), 0.525], _FABRIC),
