@@ -10,6 +10,7 @@ from vamg_drake.perception.gaze import (
     decide_fetch_gaze,
     frustum_scores_reference,
 )
+from vamg_drake.perception.trajectory_sweep import TrajectorySweep
 from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics, HeadCameraConfig
 from vamg_drake.robot.kinematics import FetchKinematics
@@ -53,17 +54,36 @@ def test_frustum_scores_match_the_numpy_reference():
     assert np.count_nonzero(ref) > 10
 
 
+def test_candidate_cameras_match_full_kinematics():
+    from vamg_drake.perception.gaze import FetchGazeCameras
+
+    g = GazeOptimizer(K)
+    cams = FetchGazeCameras(g.candidates)
+    q = np.array([1.0, 2.0, -2.5, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8])
+    np.testing.assert_allclose(cams.poses(q), FetchKinematics.instance().camera_poses_for_gazes(q, g.candidates), atol=1e-9)
+
+
+def test_window_weights_match_direct_resampling():
+    times = np.array([0.0, 1.0, 3.0])
+    q = np.array([Q0, layout.stow_configuration(1.0, 0, 0), layout.stow_configuration(1.5, 0.5, 0.3)])
+    g = GazeOptimizer(K)
+    q_win, speed = g.lookahead_window(times, q, 0.4)
+    _, sweep_speed = TrajectorySweep(times, q).window(0.4, g.config.lookahead_waypoints, 2)
+    np.testing.assert_allclose(sweep_speed, speed)
+    assert speed[0] == pytest.approx(1.0) and speed[-1] == 0.0
+
+
 def test_fast_base_motion_to_the_left_draws_the_gaze_left():
     # Turn in place to face left, then drive 3 m to the left.
     times = np.array([0.0, 1.6, 4.6])
     q = np.array([Q0, layout.stow_configuration(0, 0, np.pi / 2), layout.stow_configuration(0, 3.0, np.pi / 2)])
     target_on_the_right = np.array([2.0, -1.5, 0.7])
     for variant in ("velocity_aware", "velocity_agnostic"):
-        d = decide_fetch_gaze(GazeOptimizer(K, GazeConfig(variant=variant)), Q0, target_on_the_right, times, q, 0.0)
+        d = decide_fetch_gaze(GazeOptimizer(K, GazeConfig(variant=variant)), Q0, target_on_the_right, TrajectorySweep(times, q), 0.0)
         assert d.sees_importance
         assert d.pan > 0.3, variant  # left of the robot's heading
     # target_only ignores the trajectory and looks at the target.
-    d = decide_fetch_gaze(GazeOptimizer(K, GazeConfig(variant="target_only")), Q0, target_on_the_right, times, q, 0.0)
+    d = decide_fetch_gaze(GazeOptimizer(K, GazeConfig(variant="target_only")), Q0, target_on_the_right, TrajectorySweep(times, q), 0.0)
     assert d.pan < 0.0
 
 
@@ -71,12 +91,13 @@ def test_velocity_agnostic_can_choose_differently():
     # A slow 0.25 m creep to the right (2.5 s), then a fast 3.75 m dash to the left (2.5 s).
     times = np.array([0.0, 2.5, 5.0])
     q = np.array([Q0, layout.stow_configuration(0, -0.25, 0), layout.stow_configuration(0, 3.5, 0)])
-    aware = decide_fetch_gaze(GazeOptimizer(K), Q0, None, times, q, 0.0)
-    agnostic = decide_fetch_gaze(GazeOptimizer(K, GazeConfig(variant="velocity_agnostic")), Q0, None, times, q, 0.0)
+    sweep = TrajectorySweep(times, q)
+    aware = decide_fetch_gaze(GazeOptimizer(K), Q0, None, sweep, 0.0)
+    agnostic = decide_fetch_gaze(GazeOptimizer(K, GazeConfig(variant="velocity_agnostic")), Q0, None, sweep, 0.0)
     assert aware.pan > 0.3  # where the robot will move fast
     assert agnostic.pan < 0.0  # where it spends most time
     # Progress matters: once the creep is over, the agnostic variant looks left too.
-    late = decide_fetch_gaze(GazeOptimizer(K, GazeConfig(variant="velocity_agnostic")), q[1], None, times, q, 2.5)
+    late = decide_fetch_gaze(GazeOptimizer(K, GazeConfig(variant="velocity_agnostic")), q[1], None, sweep, 2.5)
     assert late.pan > 0.3
 
 
@@ -93,7 +114,7 @@ def test_without_a_trajectory_the_gaze_centres_the_target():
         assert d.index == int(np.argmin(angle)), target
     # A trajectory that has ended (the window is at rest) also falls back to the target.
     times, q = np.array([0.0, 1.0]), np.array([Q0, layout.stow_configuration(0.5, 0, 0)])
-    d_end = decide_fetch_gaze(g, q[1], np.array([1.5, 0.5, 0.7]), times, q, 5.0)
+    d_end = decide_fetch_gaze(g, q[1], np.array([1.5, 0.5, 0.7]), TrajectorySweep(times, q), 5.0)
     assert d_end.index == decide_fetch_gaze(g, q[1], np.array([1.5, 0.5, 0.7])).index
 
 

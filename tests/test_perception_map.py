@@ -227,3 +227,21 @@ def test_trajectory_check_finds_the_first_colliding_waypoint():
         )
     with pytest.raises(ValueError, match="sphere"):
         first_colliding_waypoint(points, centers[:, :5], radii)
+
+
+def test_swept_sphere_index_agrees_with_the_reference():
+    from vamg_drake.perception.trajectory_check import SweptSphereIndex
+
+    rng = np.random.default_rng(4)
+    path = np.linspace([-2.0, -1.0, 0.3], [2.0, 1.0, 1.0], 60)
+    centers = path[:, None, :] + rng.uniform(-0.3, 0.3, (12, 3))[None]
+    radii = rng.uniform(0.03, 0.3, 12)
+    index = SweptSphereIndex(centers, radii, margin=0.01)
+    for seed in range(20):
+        pts = np.random.default_rng(seed).uniform([-3, -2, 0], [3, 2, 1.5], (int(10 + 30 * seed), 3))
+        expected = first_colliding_waypoint_reference(pts, centers, radii, 0.01)
+        assert index.first_collision(pts) == expected
+        start = 30
+        expected_late = first_colliding_waypoint_reference(pts, centers[start:], radii, 0.01)
+        assert index.first_collision(pts, start) == (-1 if expected_late < 0 else expected_late + start)
+    assert index.first_collision(np.empty((0, 3))) == -1

@@ -280,44 +280,66 @@ def _frustum_scores(points, weights, X_WC, fx, fy, cx, cy, width, height, depth_
     return out
 
 
+class FetchGazeCameras:
+    """Camera poses X_WC of the candidate gazes at any configuration q, with one FK call.
+
+    The head chain hangs off `HEAD_PARENT_LINK`, so X_WC(q, gaze_k) =
+    X_WP(q) * X_PC(gaze_k); the X_PC are computed once per candidate set.
+    """
+
+    HEAD_PARENT_LINK = "torso_lift_link"
+
+    def __init__(self, candidates: np.ndarray):
+        from vamg_drake.robot.kinematics import FetchKinematics
+
+        self._kin = FetchKinematics.instance()
+        self.candidates = np.asarray(candidates, dtype=float)
+        q_ref = layout.stow_configuration(0.0, 0.0, 0.0)
+        X_WP = self._kin.frame_pose(self.HEAD_PARENT_LINK, q_ref)
+        self._X_PC = np.linalg.inv(X_WP)[None] @ self._kin.camera_poses_for_gazes(q_ref, self.candidates)
+        # The composition must reproduce the full FK (it would not if the URDF's head moved).
+        q_test = np.array([0.3, -0.2, 0.7, 0.25, 0.4, -0.3, 0.2, 0.8, -0.5, 0.6, 0.1])
+        if not np.allclose(self.poses(q_test), self._kin.camera_poses_for_gazes(q_test, self.candidates), atol=1e-9):
+            raise RuntimeError(f"FetchGazeCameras: the head is not a child chain of {self.HEAD_PARENT_LINK}")
+
+    def poses(self, q: np.ndarray) -> np.ndarray:
+        """(K, 4, 4) X_WC of every candidate gaze at configuration q (11,)."""
+        X_WP = self._kin.frame_pose(self.HEAD_PARENT_LINK, np.asarray(q, dtype=float))
+        return X_WP[None] @ self._X_PC
+
+
 def decide_fetch_gaze(
     optimizer: GazeOptimizer,
     q_now: np.ndarray,
     p_WTarget: np.ndarray | None,
-    trajectory_times: np.ndarray | None = None,
-    trajectory_q: np.ndarray | None = None,
+    sweep=None,
     t_now: float = 0.0,
+    cameras: FetchGazeCameras | None = None,
 ) -> GazeDecision:
     """One gaze decision for the Fetch (its kinematics and sphere model).
 
-    Executing (a trajectory with >= 2 waypoints is given and the variant is not
+    Executing (a `TrajectorySweep` is given and the variant is not
     ``target_only``): the body points are the robot's sphere centres along the
-    look-ahead window. Otherwise the target ball is the importance; with neither
-    a trajectory nor a target, every candidate scores 0 and the most neutral gaze
-    wins.
+    look-ahead window of the sweep, every `waypoint_dt`. Otherwise the target
+    ball is the importance; with neither a moving trajectory nor a target,
+    every candidate scores 0 and the most neutral gaze wins.
 
     Args:
         optimizer: the core optimizer.
         q_now: (11,) current whole-body configuration (the head sits on it).
         p_WTarget: (3,) target position, or None.
-        trajectory_times, trajectory_q: the trajectory being executed, or None.
+        sweep: the executing trajectory's `TrajectorySweep`, or None while planning.
         t_now: current progress on the trajectory's clock [s].
+        cameras: cached candidate camera poses (made here when None).
     """
-    from vamg_drake.robot.kinematics import FetchKinematics
-    from vamg_drake.robot.spheres import SphereModel
-
     q_now = np.asarray(q_now, dtype=float).reshape(layout.NQ)
     if not np.all(np.isfinite(q_now)):
         raise ValueError("decide_fetch_gaze: q_now contains NaN or inf")
-    X_WC = FetchKinematics.instance().camera_poses_for_gazes(q_now, optimizer.candidates)
-    executing = (
-        trajectory_q is not None
-        and np.shape(trajectory_q)[0] >= 2
-        and optimizer.config.variant != "target_only"
-    )
-    if executing:
-        q_win, speed = optimizer.lookahead_window(trajectory_times, trajectory_q, t_now)
-        body = SphereModel.load().world_spheres(q_win)
+    cameras = cameras or FetchGazeCameras(optimizer.candidates)
+    X_WC = cameras.poses(q_now)
+    if sweep is not None and optimizer.config.variant != "target_only":
+        stride = max(1, int(round(optimizer.config.waypoint_dt / sweep.dt)))
+        body, speed = sweep.window(t_now, optimizer.config.lookahead_waypoints, stride)
         field = optimizer.trajectory_importance(body, speed)
         if field.total > 0.0 or p_WTarget is None:
             return optimizer.choose(field, X_WC)

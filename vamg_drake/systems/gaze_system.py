@@ -6,9 +6,10 @@ import logging
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
+from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem, ValueProducer
 
-from vamg_drake.perception.gaze import GazeConfig, GazeOptimizer as GazeOptimizerCore, decide_fetch_gaze
+from vamg_drake.perception.gaze import FetchGazeCameras, GazeConfig, GazeOptimizer as GazeOptimizerCore, decide_fetch_gaze
+from vamg_drake.perception.trajectory_sweep import TrajectorySweep
 from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics
 
@@ -37,10 +38,17 @@ class GazeOptimizer(LeafSystem):
     def __init__(self, intrinsics: CameraIntrinsics, config: GazeConfig | None = None, period: float = 0.1):
         super().__init__()
         self._core = GazeOptimizerCore(intrinsics, config)
+        self._cameras = FetchGazeCameras(self._core.candidates)
         self._trajectory_port = self.DeclareAbstractInputPort("trajectory", AbstractValue.Make(None))
         self._time_port = self.DeclareVectorInputPort("trajectory_time", 1)
         self._target_port = self.DeclareVectorInputPort("target", 3)
         self._q_port = self.DeclareVectorInputPort("robot_configuration", layout.NQ)
+        # The trajectory's sweep (sphere FK once per trajectory), recomputed only when the input changes.
+        self._sweep_cache = self.DeclareCacheEntry(
+            "trajectory_sweep",
+            ValueProducer(allocate=lambda: AbstractValue.Make(None), calc=self._calc_sweep),
+            {self._trajectory_port.ticket()},
+        )
         self._command_index = self.DeclareDiscreteState(BasicVector([0.0, 0.0]))
         self.DeclareStateOutputPort("head_command", self._command_index)
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
@@ -49,6 +57,14 @@ class GazeOptimizer(LeafSystem):
     def core(self) -> GazeOptimizerCore:
         return self._core
 
+    def _calc_sweep(self, context, value: AbstractValue) -> None:
+        trajectory = self._trajectory_port.Eval(context) if self._trajectory_port.HasValue(context) else None
+        sweep = None
+        if trajectory is not None and trajectory.num_waypoints >= 2:
+            dt = self._core.config.waypoint_dt
+            sweep = TrajectorySweep(trajectory.times, trajectory.q, dt=dt)
+        value.set_value(sweep)
+
     def _update(self, context, discrete_state) -> EventStatus:
         q = np.asarray(self._q_port.Eval(context), dtype=float)
         target = None
@@ -56,12 +72,9 @@ class GazeOptimizer(LeafSystem):
             p = np.asarray(self._target_port.Eval(context), dtype=float)
             target = p if np.all(np.isfinite(p)) else None
         t_now = float(self._time_port.Eval(context)[0]) if self._time_port.HasValue(context) else context.get_time()
-        trajectory = self._trajectory_port.Eval(context) if self._trajectory_port.HasValue(context) else None
-        times = traj_q = None
-        if trajectory is not None:
-            times, traj_q = trajectory.times, trajectory.q
         try:
-            decision = decide_fetch_gaze(self._core, q, target, times, traj_q, t_now)
+            sweep = self._sweep_cache.Eval(context)
+            decision = decide_fetch_gaze(self._core, q, target, sweep, t_now, self._cameras)
         except ValueError as e:
             _log.error("GazeOptimizer: input rejected, holding the previous head command: %s", e)
             return EventStatus.Succeeded()
