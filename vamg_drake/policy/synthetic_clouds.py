@@ -135,3 +135,50 @@ def table_top_cloud(
     g = np.arange(-size / 2, size / 2 + 1e-9, spacing)
     gx, gy = np.meshgrid(g, g, indexing="ij")
     return np.stack([gx.ravel() + center_xy[0], gy.ravel() + center_xy[1], np.full(gx.size, z)], axis=1)
+
+
+def box_surface_cloud(lower: np.ndarray, upper: np.ndarray, spacing: float = 0.03) -> np.ndarray:
+    """Grid points on the six faces of an axis-aligned box."""
+    lo, hi = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
+    faces = []
+    for axis in range(3):
+        others = [a for a in range(3) if a != axis]
+        grids = [np.arange(lo[a], hi[a] + 1e-9, spacing) for a in others]
+        A, B = np.meshgrid(*grids, indexing="ij")
+        for value in (lo[axis], hi[axis]):
+            P = np.empty((A.size, 3))
+            P[:, axis] = value
+            P[:, others[0]] = A.ravel()
+            P[:, others[1]] = B.ravel()
+            faces.append(P)
+    return np.concatenate(faces)
+
+
+def room_walls_cloud(half_size: float = 3.0, height: float = 2.0, spacing: float = 0.05) -> np.ndarray:
+    """Four 10 cm thick walls around the square [-half_size, half_size]^2."""
+    s, t = half_size, 0.1
+    return np.concatenate(
+        [
+            box_surface_cloud([-s, -s - t, 0.0], [s, -s, height], spacing),
+            box_surface_cloud([-s, s, 0.0], [s, s + t, height], spacing),
+            box_surface_cloud([-s - t, -s, 0.0], [-s, s, height], spacing),
+            box_surface_cloud([s, -s, 0.0], [s + t, s, height], spacing),
+        ]
+    )
+
+
+def tabletop_scene(
+    table_center_xy: tuple[float, float] = (1.1, 0.0),
+    table_size: tuple[float, float] = (0.6, 1.0),
+    table_height: float = 0.7,
+    object_offset_xy: tuple[float, float] = (-0.1, 0.0),
+    room_half_size: float = 3.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """A walled room with a table and a can on it: (map points (N, 3), target (3,))."""
+    cx, cy = table_center_xy
+    sx, sy = table_size
+    table = box_surface_cloud([cx - sx / 2, cy - sy / 2, 0.0], [cx + sx / 2, cy + sy / 2, table_height])
+    can_base = np.array([cx + object_offset_xy[0], cy + object_offset_xy[1], table_height])
+    can = can_cloud(center=can_base, seed=11)
+    points = np.concatenate([room_walls_cloud(room_half_size), table, can])
+    return points, can_base + np.array([0.0, 0.0, 0.06])

@@ -1,0 +1,155 @@
+"""The subgoal behaviour tree with injected samplers (no robot model needed)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vamg_drake.policy.behaviour_tree import (
+    BehaviourConfig,
+    FailureCategory,
+    MotionEvent,
+    Phase,
+    PolicyInputs,
+    SubgoalBehaviour,
+    SubgoalProposal,
+    SubgoalSamplers,
+)
+from vamg_drake.robot import layout
+
+
+class ScriptedSampler:
+    """Answers from a list (the last answer repeats) and records its calls."""
+
+    def __init__(self, name: str, answers: list[bool], category=FailureCategory.SUBGOAL) -> None:
+        self.name, self.answers, self.category, self.calls = name, answers, category, 0
+
+    def __call__(self, inputs: PolicyInputs) -> SubgoalProposal:
+        ok = self.answers[min(self.calls, len(self.answers) - 1)]
+        self.calls += 1
+        if not ok:
+            return SubgoalProposal.failure(f"{self.name} failed #{self.calls}", self.category)
+        q = np.asarray(inputs.q, float).copy()
+        q[0] += {"grasp": 0.0, "pregrasp": 1.0, "observe": -1.0}[self.name]
+        q_grasp = q + 0.01 if self.name == "grasp" else None
+        return SubgoalProposal(True, q, q_grasp, np.zeros(2))
+
+
+def _inputs(t: float = 0.0, q: np.ndarray | None = None) -> PolicyInputs:
+    return PolicyInputs(t, layout.stow_configuration(0, 0, 0) if q is None else q, np.zeros((0, 3)), np.array([1.0, 0, 0.8]))
+
+
+def _make(grasp, pre, obs, **cfg):
+    samplers = SubgoalSamplers(ScriptedSampler("grasp", grasp), ScriptedSampler("pregrasp", pre), ScriptedSampler("observe", obs))
+    return SubgoalBehaviour(samplers, BehaviourConfig(**cfg)), samplers
+
+
+def test_grasp_first_then_full_grasp_sequence() -> None:
+    bt, s = _make([True], [True], [True])
+    cmd = bt.step(_inputs())
+    assert cmd.phase == Phase.GRASP_MOVE and cmd.motion == "plan" and s.pregrasp.calls == 0
+    assert cmd.gripper_opening == layout.GRIPPER_MAX_OPENING
+    cmd = bt.step(_inputs(1.0, cmd.q_goal), MotionEvent.REACHED)
+    assert cmd.phase == Phase.GRASP_APPROACH and cmd.motion == "linear"
+    cmd = bt.step(_inputs(2.0, cmd.q_goal), MotionEvent.REACHED)
+    assert cmd.phase == Phase.GRASP_CLOSE and cmd.gripper_opening == 0.0
+    cmd = bt.step(_inputs(2.5, cmd.q_goal))
+    assert cmd.phase == Phase.GRASP_CLOSE  # still closing
+    cmd = bt.step(_inputs(3.1, cmd.q_goal))
+    assert cmd.phase == Phase.GRASP_LIFT and cmd.motion == "linear"
+    assert cmd.q_goal[layout.TORSO] > layout.TORSO_STOW
+    cmd = bt.step(_inputs(5.0, cmd.q_goal), MotionEvent.REACHED)
+    assert cmd.phase == Phase.SUCCEEDED and cmd.failure == FailureCategory.NONE
+
+
+def test_fallback_order_grasp_pregrasp_observe_fail() -> None:
+    bt, s = _make([False], [False], [True])
+    cmd = bt.step(_inputs())
+    assert cmd.phase == Phase.OBSERVE and (s.grasp.calls, s.pregrasp.calls, s.observe.calls) == (1, 1, 1)
+    assert "Observe" in bt.tree_status() and bt.stage_failures["pregrasp"][0] == "pregrasp failed #1"
+
+    bt, s = _make([False], [False], [False])
+    cmd = bt.step(_inputs())
+    assert cmd.phase == Phase.FAILED and cmd.failure == FailureCategory.SUBGOAL and cmd.motion == "hold"
+    assert "pregrasp failed" in cmd.reason
+    # Terminal: no more sampling.
+    bt.step(_inputs(1.0))
+    assert s.grasp.calls == 1
+
+
+def test_pregrasp_reached_retries_grasp_first() -> None:
+    bt, s = _make([False, True], [True], [True])
+    cmd = bt.step(_inputs())
+    assert cmd.phase == Phase.PREGRASP
+    cmd = bt.step(_inputs(1.0, cmd.q_goal), MotionEvent.REACHED)
+    assert cmd.phase == Phase.GRASP_MOVE and s.grasp.calls == 2
+
+
+def test_recovers_after_injected_motion_failure() -> None:
+    bt, s = _make([True], [True], [True])
+    q0 = layout.stow_configuration(0, 0, 0)
+    cmd = bt.step(_inputs(0.0, q0))
+    assert cmd.phase == Phase.GRASP_MOVE
+    first_goal = cmd.goal_id
+    # The grasp motion fails: the grasp is blocked at this base, the tree falls back to pre-grasp.
+    cmd = bt.step(_inputs(1.0, q0), MotionEvent.FAILED)
+    assert cmd.phase == Phase.PREGRASP and cmd.goal_id > first_goal
+    assert bt.motion_failures["grasp"] == 1 and s.grasp.calls == 1
+    # Reaching the pre-grasp base unblocks grasping.
+    cmd = bt.step(_inputs(2.0, cmd.q_goal), MotionEvent.REACHED)
+    assert cmd.phase == Phase.GRASP_MOVE and s.grasp.calls == 2
+
+
+def test_invalidated_goal_is_resampled_without_failure() -> None:
+    bt, s = _make([False], [True], [True])
+    cmd = bt.step(_inputs())
+    cmd2 = bt.step(_inputs(0.5), MotionEvent.INVALIDATED)
+    assert cmd2.phase == Phase.PREGRASP and cmd2.goal_id > cmd.goal_id and s.pregrasp.calls == 2
+    assert bt.total_failures == 0
+
+
+def test_repeated_motion_failures_end_with_planning() -> None:
+    bt, s = _make([False], [True], [True], max_total_failures=3)
+    cmd = bt.step(_inputs())
+    for k in range(10):
+        cmd = bt.step(_inputs(float(k + 1)), MotionEvent.FAILED)
+        if cmd.phase == Phase.FAILED:
+            break
+    assert cmd.phase == Phase.FAILED and cmd.failure == FailureCategory.PLANNING
+    assert bt.history[-1][1] == "failed"
+
+
+def test_budgets_prevent_endless_cycling() -> None:
+    bt, s = _make([False], [True], [True], max_pregrasp_goals=2, max_observe_goals=1)
+    cmd = bt.step(_inputs())
+    for k in range(20):
+        cmd = bt.step(_inputs(float(k + 1), cmd.q_goal), MotionEvent.REACHED)
+        if cmd.phase == Phase.FAILED:
+            break
+    assert cmd.phase == Phase.FAILED
+    assert bt.goals_issued == {"grasp": 0, "pregrasp": 2, "observe": 1}
+
+
+def test_perception_category_when_no_grasp_candidates() -> None:
+    samplers = SubgoalSamplers(
+        ScriptedSampler("grasp", [False], FailureCategory.PERCEPTION),
+        ScriptedSampler("pregrasp", [False], FailureCategory.SUBGOAL),
+        ScriptedSampler("observe", [False]),
+    )
+    cmd = SubgoalBehaviour(samplers).step(_inputs())
+    assert cmd.failure == FailureCategory.PERCEPTION
+
+
+def test_sampler_exception_is_a_recorded_failure() -> None:
+    def broken(inputs):
+        raise RuntimeError("boom")
+
+    samplers = SubgoalSamplers(broken, ScriptedSampler("pregrasp", [True]), ScriptedSampler("observe", [True]))
+    bt = SubgoalBehaviour(samplers)
+    cmd = bt.step(_inputs())
+    assert cmd.phase == Phase.PREGRASP and "boom" in bt.stage_failures["grasp"][0]
+
+
+def test_config_validation() -> None:
+    with pytest.raises(ValueError, match="max_total_failures"):
+        BehaviourConfig(max_total_failures=-1)

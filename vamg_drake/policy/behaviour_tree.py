@@ -1,0 +1,454 @@
+"""The subgoal policy's behaviour tree (py_trees): Grasp -> Pre-grasp -> Observe -> Fail.
+
+The tree is ticked whenever a new goal is needed (at start, when a subgoal is
+reached, after a failed motion, or when the map invalidates the goal)::
+
+    Selector "Subgoal" (memory=False)
+    |-- Sequence "Grasp"      : StageAllowed(grasp)     -> GenerateGoal(grasp)
+    |-- Sequence "Pre-grasp"  : StageAllowed(pregrasp)  -> GenerateGoal(pregrasp)
+    |-- Sequence "Observe"    : StageAllowed(observe)   -> GenerateGoal(observe)
+    `-- Fail                  : records the failure category, ends the episode
+
+Each ``GenerateGoal`` calls an injectable sampler (``SubgoalSamplers``); the
+first stage whose sampler succeeds sets the goal. Execution of a grasp goal is
+a fixed sequence of phases: move to the pre-grasp (planned), linear approach,
+close the gripper, lift (torso up). Runtime recovery (``MotionEvent``):
+
+* REACHED -- grasp phases advance; a reached pre-grasp or observe goal
+  re-ticks the tree (Grasp first, from the new base and the updated map).
+* FAILED -- the failed stage's failure count grows: a grasp whose motion
+  failed is blocked until the base moves (so the tree falls back to
+  Pre-grasp), a stage that failed ``max_motion_failures`` times is skipped;
+  more than ``max_total_failures`` failures end the episode (PLANNING).
+* INVALIDATED -- the goal is resampled from the top, without counting a failure
+  (bounded by ``max_invalidations``).
+
+Pre-grasp and observe goals are budgeted (``max_pregrasp_goals``,
+``max_observe_goals``) so the tree cannot cycle forever; when every stage is
+exhausted or fails to sample, Fail ends the episode with a category.
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import enum
+from typing import Callable
+
+import numpy as np
+import py_trees
+
+from vamg_drake.robot import layout
+
+
+class Phase(enum.Enum):
+    """What the robot is doing for the current subgoal."""
+
+    IDLE = "idle"
+    GRASP_MOVE = "grasp_move"  # planned motion to the pre-grasp pose of a grasp
+    GRASP_APPROACH = "grasp_approach"  # linear approach to the grasp pose
+    GRASP_CLOSE = "grasp_close"
+    GRASP_LIFT = "grasp_lift"
+    PREGRASP = "pregrasp"
+    OBSERVE = "observe"
+    SUCCEEDED = "succeeded"
+    FAILED = "failed"
+
+
+TERMINAL = (Phase.SUCCEEDED, Phase.FAILED)
+GRASP_PHASES = (Phase.GRASP_MOVE, Phase.GRASP_APPROACH, Phase.GRASP_CLOSE, Phase.GRASP_LIFT)
+
+
+class FailureCategory(enum.Enum):
+    """The paper's failure categories that the subgoal policy can decide."""
+
+    NONE = "none"
+    REACHABILITY = "reachability"
+    PERCEPTION = "perception"
+    PLANNING = "planning"
+    SUBGOAL = "subgoal"
+    IK = "ik"
+
+
+class MotionEvent(enum.Enum):
+    """Feedback from motion execution about the current goal."""
+
+    NONE = "none"
+    REACHED = "reached"
+    FAILED = "failed"
+    INVALIDATED = "invalidated"
+
+
+class Stage(enum.Enum):
+    GRASP = "grasp"
+    PREGRASP = "pregrasp"
+    OBSERVE = "observe"
+
+
+@dc.dataclass(frozen=True)
+class PolicyInputs:
+    """What a sampler sees: time, configuration, map points and the target."""
+
+    time: float
+    q: np.ndarray
+    p_WM: np.ndarray
+    p_WT: np.ndarray
+
+
+@dc.dataclass(frozen=True)
+class SubgoalProposal:
+    """A sampler's answer.
+
+    Attributes:
+        success: a goal was found.
+        q_goal: (11,) the configuration to move to (the pre-grasp for grasps).
+        q_grasp: (11,) grasp stage only: the grasp configuration (linear approach).
+        head: (2,) optional pan/tilt that looks at the target from q_goal.
+        failure_reason: why not (empty on success).
+        category: the failure category this failure points at.
+    """
+
+    success: bool
+    q_goal: np.ndarray | None = None
+    q_grasp: np.ndarray | None = None
+    head: np.ndarray | None = None
+    failure_reason: str = ""
+    category: FailureCategory = FailureCategory.NONE
+
+    @staticmethod
+    def failure(reason: str, category: FailureCategory) -> "SubgoalProposal":
+        return SubgoalProposal(False, failure_reason=reason, category=category)
+
+
+SamplerFn = Callable[[PolicyInputs], SubgoalProposal]
+
+
+@dc.dataclass
+class SubgoalSamplers:
+    """The three injectable goal generators."""
+
+    grasp: SamplerFn
+    pregrasp: SamplerFn
+    observe: SamplerFn
+
+
+@dc.dataclass
+class BehaviourConfig:
+    """Budgets and execution parameters of the subgoal behaviour."""
+
+    max_motion_failures: int = 2
+    max_total_failures: int = 6
+    max_pregrasp_goals: int = 4
+    max_observe_goals: int = 3
+    max_invalidations: int = 10
+    #: Base displacement that unblocks the grasp stage after a failed grasp motion [m].
+    unblock_distance: float = 0.1
+    #: Time the gripper takes to close [s].
+    close_duration: float = 1.0
+    #: Lift height by the torso after closing [m] (clipped to the torso limit).
+    lift_height: float = 0.12
+
+    def __post_init__(self) -> None:
+        for f in dc.fields(self):
+            if getattr(self, f.name) < 0:
+                raise ValueError(f"BehaviourConfig.{f.name} must be >= 0, got {getattr(self, f.name)}")
+
+
+@dc.dataclass(frozen=True)
+class SubgoalCommand:
+    """The policy's output (the value of the SubgoalPolicy's goal port).
+
+    Attributes:
+        goal_id: increments whenever the goal changes.
+        q_goal: (11,) goal configuration (the current q while idle or terminal).
+        motion: "plan" (whole-body planner), "linear" (straight joint-space
+            approach or lift), or "hold".
+        phase: the current `Phase`.
+        gripper_opening: commanded finger gap [m].
+        head: (2,) pan/tilt that sees the target from the goal, or NaN.
+        failure: the failure category (NONE unless phase is FAILED).
+        reason: a human-readable reason for the last transition.
+    """
+
+    goal_id: int
+    q_goal: np.ndarray
+    motion: str
+    phase: Phase
+    gripper_opening: float
+    head: np.ndarray
+    failure: FailureCategory = FailureCategory.NONE
+    reason: str = ""
+
+
+@dc.dataclass
+class _State:
+    """Mutable state shared by the tree's behaviours."""
+
+    inputs: PolicyInputs | None = None
+    proposal: SubgoalProposal | None = None
+    proposal_stage: Stage | None = None
+    last_failures: dict = dc.field(default_factory=dict)
+    motion_failures: dict = dc.field(default_factory=lambda: {s: 0 for s in Stage})
+    goals_issued: dict = dc.field(default_factory=lambda: {s: 0 for s in Stage})
+    grasp_blocked_at: np.ndarray | None = None
+    failure: FailureCategory = FailureCategory.NONE
+    failure_reason: str = ""
+
+
+class StageAllowed(py_trees.behaviour.Behaviour):
+    """SUCCESS when the stage may be tried now (budgets and blocks)."""
+
+    def __init__(self, stage: Stage, owner: "SubgoalBehaviour") -> None:
+        super().__init__(name=f"{stage.value} allowed?")
+        self.stage = stage
+        self.owner = owner
+
+    def update(self) -> py_trees.common.Status:
+        reason = self.owner._stage_block_reason(self.stage)
+        if reason:
+            self.feedback_message = reason
+            self.owner._state.last_failures.setdefault(self.stage, (reason, FailureCategory.NONE))
+            return py_trees.common.Status.FAILURE
+        self.feedback_message = "allowed"
+        return py_trees.common.Status.SUCCESS
+
+
+class GenerateGoal(py_trees.behaviour.Behaviour):
+    """Calls a sampler; SUCCESS (and the goal recorded) when it finds one."""
+
+    def __init__(self, stage: Stage, sampler: SamplerFn, owner: "SubgoalBehaviour") -> None:
+        super().__init__(name=f"{stage.value} goal")
+        self.stage = stage
+        self.sampler = sampler
+        self.owner = owner
+
+    def update(self) -> py_trees.common.Status:
+        state = self.owner._state
+        try:
+            proposal = self.sampler(state.inputs)
+        except Exception as e:  # noqa: BLE001 - a sampler bug must not crash the episode
+            proposal = SubgoalProposal.failure(f"{self.stage.value} sampler raised {type(e).__name__}: {e}",
+                                               FailureCategory.SUBGOAL)
+        if proposal.success:
+            state.proposal, state.proposal_stage = proposal, self.stage
+            self.feedback_message = "goal found"
+            return py_trees.common.Status.SUCCESS
+        state.last_failures[self.stage] = (proposal.failure_reason, proposal.category)
+        self.feedback_message = proposal.failure_reason
+        return py_trees.common.Status.FAILURE
+
+
+class FailLeaf(py_trees.behaviour.Behaviour):
+    """Every stage failed: decides the failure category and ends the episode."""
+
+    def __init__(self, owner: "SubgoalBehaviour") -> None:
+        super().__init__(name="Fail")
+        self.owner = owner
+
+    def update(self) -> py_trees.common.Status:
+        state = self.owner._state
+        state.failure, state.failure_reason = self.owner._failure_category()
+        self.feedback_message = f"{state.failure.value}: {state.failure_reason}"
+        return py_trees.common.Status.FAILURE
+
+
+class SubgoalBehaviour:
+    """The subgoal policy's core: a py_trees tree plus the grasp execution phases.
+
+    Args:
+        samplers: the grasp, pre-grasp and observe goal generators.
+        config: budgets and execution parameters.
+    """
+
+    def __init__(self, samplers: SubgoalSamplers, config: BehaviourConfig | None = None) -> None:
+        self.config = config or BehaviourConfig()
+        self._state = _State()
+        self.root = py_trees.composites.Selector("Subgoal", memory=False)
+        for stage, sampler, name in (
+            (Stage.GRASP, samplers.grasp, "Grasp"),
+            (Stage.PREGRASP, samplers.pregrasp, "Pre-grasp"),
+            (Stage.OBSERVE, samplers.observe, "Observe"),
+        ):
+            seq = py_trees.composites.Sequence(name, memory=False)
+            seq.add_children([StageAllowed(stage, self), GenerateGoal(stage, sampler, self)])
+            self.root.add_child(seq)
+        self.root.add_child(FailLeaf(self))
+        self.tree = py_trees.trees.BehaviourTree(self.root)
+        self.phase = Phase.IDLE
+        self.goal_id = 0
+        self.q_goal: np.ndarray | None = None
+        self.q_grasp: np.ndarray | None = None
+        self.q_lift: np.ndarray | None = None
+        self.head = np.full(2, np.nan)
+        self.close_started: float | None = None
+        self.reason = ""
+        self.total_failures = 0
+        self.invalidations = 0
+        self.history: list[tuple[float, str, str]] = []  # (time, phase, reason)
+
+    # -- inspection ---------------------------------------------------------
+
+    def tree_status(self) -> str:
+        """The tree's last tick as ASCII (statuses and feedback messages)."""
+        return py_trees.display.unicode_tree(self.root, show_status=True)
+
+    @property
+    def stage_failures(self) -> dict[str, tuple[str, str]]:
+        """The last failure reason and category of each stage (for logs)."""
+        return {s.value: (r, c.value) for s, (r, c) in self._state.last_failures.items()}
+
+    @property
+    def motion_failures(self) -> dict[str, int]:
+        return {s.value: n for s, n in self._state.motion_failures.items()}
+
+    @property
+    def goals_issued(self) -> dict[str, int]:
+        return {s.value: n for s, n in self._state.goals_issued.items()}
+
+    # -- stepping -----------------------------------------------------------
+
+    def step(self, inputs: PolicyInputs, event: MotionEvent = MotionEvent.NONE) -> SubgoalCommand:
+        """Advances the policy with new inputs and optional motion feedback."""
+        self._state.inputs = inputs
+        if self.phase in TERMINAL:
+            return self._command(inputs)
+        need_goal = self.phase == Phase.IDLE
+        if event == MotionEvent.REACHED:
+            need_goal = self._on_reached(inputs)
+        elif event == MotionEvent.FAILED:
+            need_goal = self._on_failed(inputs)
+        elif event == MotionEvent.INVALIDATED:
+            self.invalidations += 1
+            if self.invalidations > self.config.max_invalidations:
+                self._terminate(inputs, FailureCategory.PLANNING, "the map invalidated the goal too often")
+            else:
+                need_goal = self.phase not in (Phase.GRASP_CLOSE, Phase.GRASP_LIFT)
+                self._transition(inputs, self.phase, "goal invalidated by the map: resampling")
+        if self.phase == Phase.GRASP_CLOSE and self.close_started is not None:
+            if inputs.time - self.close_started >= self.config.close_duration:
+                self._set_goal(inputs, Phase.GRASP_LIFT, self.q_lift, "gripper closed: lifting")
+        if need_goal and self.phase not in TERMINAL:
+            self._tick(inputs)
+        return self._command(inputs)
+
+    def _tick(self, inputs: PolicyInputs) -> None:
+        state = self._state
+        state.proposal, state.proposal_stage = None, None
+        self.tree.tick()
+        if state.proposal is None:
+            self._terminate(inputs, state.failure, state.failure_reason)
+            return
+        stage, p = state.proposal_stage, state.proposal
+        state.goals_issued[stage] += 1
+        self.head = np.full(2, np.nan) if p.head is None else np.asarray(p.head, float)
+        if stage == Stage.GRASP:
+            self.q_grasp = np.asarray(p.q_grasp, float)
+            self.q_lift = self.q_grasp.copy()
+            self.q_lift[layout.TORSO] = min(layout.Q_UPPER[layout.TORSO], self.q_grasp[layout.TORSO] + self.config.lift_height)
+            self._set_goal(inputs, Phase.GRASP_MOVE, p.q_goal, "grasp goal found: moving to the pre-grasp pose")
+        elif stage == Stage.PREGRASP:
+            self._set_goal(inputs, Phase.PREGRASP, p.q_goal, "pre-grasp goal found")
+        else:
+            self._set_goal(inputs, Phase.OBSERVE, p.q_goal, "observe goal found")
+
+    def _on_reached(self, inputs: PolicyInputs) -> bool:
+        if self.phase == Phase.GRASP_MOVE:
+            self._set_goal(inputs, Phase.GRASP_APPROACH, self.q_grasp, "pre-grasp reached: linear approach")
+        elif self.phase == Phase.GRASP_APPROACH:
+            self.close_started = inputs.time
+            self._set_goal(inputs, Phase.GRASP_CLOSE, self.q_grasp, "grasp pose reached: closing")
+        elif self.phase == Phase.GRASP_LIFT:
+            self._transition(inputs, Phase.SUCCEEDED, "lifted")
+        elif self.phase in (Phase.PREGRASP, Phase.OBSERVE):
+            # New base, new views: the grasp stage is worth another try.
+            self._state.grasp_blocked_at = None
+            if self.phase == Phase.OBSERVE:
+                self._state.motion_failures[Stage.PREGRASP] = 0
+            self._transition(inputs, Phase.IDLE, f"{self.phase.value} goal reached")
+            return True
+        return False
+
+    def _on_failed(self, inputs: PolicyInputs) -> bool:
+        stage = {Phase.PREGRASP: Stage.PREGRASP, Phase.OBSERVE: Stage.OBSERVE}.get(self.phase, Stage.GRASP)
+        state = self._state
+        state.motion_failures[stage] += 1
+        self.total_failures += 1
+        if self.total_failures > self.config.max_total_failures:
+            self._terminate(inputs, FailureCategory.PLANNING, f"{self.total_failures} motion failures")
+            return False
+        if stage == Stage.GRASP:
+            state.grasp_blocked_at = np.asarray(inputs.q, float)[layout.BASE_XY].copy()
+        self._transition(inputs, Phase.IDLE, f"motion to the {stage.value} goal failed: resampling")
+        return True
+
+    # -- tree helpers -------------------------------------------------------
+
+    def _stage_block_reason(self, stage: Stage) -> str:
+        state, cfg = self._state, self.config
+        if state.motion_failures[stage] >= cfg.max_motion_failures and stage != Stage.GRASP:
+            return f"{stage.value}: {state.motion_failures[stage]} motion failures"
+        if stage == Stage.GRASP:
+            if state.grasp_blocked_at is not None:
+                moved = np.linalg.norm(np.asarray(state.inputs.q)[layout.BASE_XY] - state.grasp_blocked_at)
+                if moved < cfg.unblock_distance:
+                    return "grasp: a grasp motion failed from this base"
+                state.grasp_blocked_at = None
+            if state.motion_failures[stage] >= cfg.max_motion_failures + 1:
+                return f"grasp: {state.motion_failures[stage]} motion failures"
+        if stage == Stage.PREGRASP and state.goals_issued[stage] >= cfg.max_pregrasp_goals:
+            return f"pre-grasp: budget of {cfg.max_pregrasp_goals} goals used"
+        if stage == Stage.OBSERVE and state.goals_issued[stage] >= cfg.max_observe_goals:
+            return f"observe: budget of {cfg.max_observe_goals} goals used"
+        return ""
+
+    def _failure_category(self) -> tuple[FailureCategory, str]:
+        state = self._state
+        reasons = "; ".join(f"{s.value}: {r}" for s, (r, _) in state.last_failures.items())
+        if any(n >= self.config.max_motion_failures for n in state.motion_failures.values()):
+            return FailureCategory.PLANNING, reasons
+        grasp_cat = state.last_failures.get(Stage.GRASP, ("", FailureCategory.NONE))[1]
+        pre_cat = state.last_failures.get(Stage.PREGRASP, ("", FailureCategory.NONE))[1]
+        if grasp_cat == FailureCategory.PERCEPTION:
+            return FailureCategory.PERCEPTION, reasons
+        if pre_cat in (FailureCategory.REACHABILITY, FailureCategory.IK):
+            return pre_cat, reasons
+        return FailureCategory.SUBGOAL, reasons
+
+    # -- bookkeeping --------------------------------------------------------
+
+    def _set_goal(self, inputs: PolicyInputs, phase: Phase, q_goal: np.ndarray, reason: str) -> None:
+        self.goal_id += 1
+        self.q_goal = np.asarray(q_goal, dtype=float).copy()
+        self._transition(inputs, phase, reason)
+
+    def _transition(self, inputs: PolicyInputs, phase: Phase, reason: str) -> None:
+        self.phase = phase
+        self.reason = reason
+        self.history.append((float(inputs.time), phase.value, reason))
+
+    def _terminate(self, inputs: PolicyInputs, category: FailureCategory, reason: str) -> None:
+        self._state.failure = category if category != FailureCategory.NONE else FailureCategory.SUBGOAL
+        self._state.failure_reason = reason
+        self.goal_id += 1
+        self.q_goal = np.asarray(inputs.q, float).copy()
+        self._transition(inputs, Phase.FAILED, f"{self._state.failure.value}: {reason}")
+
+    def _command(self, inputs: PolicyInputs) -> SubgoalCommand:
+        closed = self.phase in (Phase.GRASP_CLOSE, Phase.GRASP_LIFT, Phase.SUCCEEDED)
+        if self.phase in (Phase.IDLE, Phase.FAILED, Phase.SUCCEEDED) or self.q_goal is None:
+            motion, q_goal = "hold", np.asarray(inputs.q, float).copy() if self.q_goal is None else self.q_goal
+        elif self.phase in (Phase.GRASP_APPROACH, Phase.GRASP_LIFT):
+            motion, q_goal = "linear", self.q_goal
+        elif self.phase == Phase.GRASP_CLOSE:
+            motion, q_goal = "hold", self.q_goal
+        else:
+            motion, q_goal = "plan", self.q_goal
+        return SubgoalCommand(
+            goal_id=self.goal_id,
+            q_goal=q_goal.copy(),
+            motion=motion,
+            phase=self.phase,
+            gripper_opening=0.0 if closed else layout.GRIPPER_MAX_OPENING,
+            head=self.head.copy(),
+            failure=self._state.failure if self.phase == Phase.FAILED else FailureCategory.NONE,
+            reason=self.reason,
+        )
