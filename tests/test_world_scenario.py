@@ -181,3 +181,19 @@ def test_readme_example_loads():
     scenario = scenario_from_yaml(example, "README.md")
     assert [type(e) for e in scenario.dynamic_events] == [AppearAtDistance, AppearAtPhase, MoveAlongPath]
     np.testing.assert_allclose(scenario.target_point(), [4.5, 1.5, 0.793])
+
+
+def test_bad_room_outlines():
+    scenario = _scenario()
+    scenario.room.outline = [[0, 0], [6, 0], [0, 5], [6, 5]]  # a bow tie
+    with pytest.raises(ScenarioError, match=r"room.outline: edges 1 and 3 cross"):
+        validate_scenario(scenario, "s.yaml")
+    scenario.room.outline = [[0, 0], [6, 0], [6, 0], [0, 5]]
+    with pytest.raises(ScenarioError, match=r"room.outline: edge 1 has zero length"):
+        validate_scenario(scenario, "s.yaml")
+    scenario = _scenario()
+    scenario.room.doorways = [Doorway(edge=9, center=1.0, width=0.9), Doorway(edge=1, center=2.8, width=0.9)]
+    with pytest.raises(ScenarioError) as info:
+        validate_scenario(scenario, "s.yaml")
+    assert "room.doorways[0].edge: 9 is not an outline edge" in str(info.value)
+    assert "room.doorways[1]: gap" in str(info.value)

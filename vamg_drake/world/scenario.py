@@ -526,6 +526,10 @@ def _check_room(room: Room, problems: list[str]) -> bool:
         return False
     poly = np.asarray(room.outline, dtype=float)
     n = len(poly)
+    lengths = np.linalg.norm(np.roll(poly, -1, axis=0) - poly, axis=1)
+    if np.any(lengths < 1e-6):
+        problems.append(f"room.outline: edge {int(np.argmin(lengths))} has zero length (repeated vertex)")
+        return False
     for i in range(n):
         for j in range(i + 2, n):
             if i == 0 and j == n - 1:
