@@ -129,3 +129,18 @@ def test_bad_gaze_inputs_raise_clear_errors():
     # Nothing to look at: a neutral gaze, flagged.
     d = decide_fetch_gaze(g, Q0, None)
     assert not d.sees_importance and d.score == 0.0
+
+
+def test_configs_load_from_yaml_and_are_validated():
+    from pydrake.common.yaml import yaml_load_typed
+
+    from vamg_drake.perception.raycast_map import PointMap, RayCastMapConfig
+
+    config = yaml_load_typed(schema=RayCastMapConfig, data="{ground_height: 0.3, depth: {crop_radius: 2.0}}")
+    assert config.ground_height == 0.3 and config.depth.crop_radius == 2.0
+    gaze = yaml_load_typed(schema=GazeConfig, data="{variant: velocity_agnostic, num_pan: 4}")
+    assert GazeOptimizer(K, gaze).num_candidates == 20
+    with pytest.raises(ValueError, match="variant"):
+        GazeOptimizer(K, yaml_load_typed(schema=GazeConfig, data="{variant: foo}"))
+    with pytest.raises(ValueError, match="crop_radius"):
+        PointMap(K, yaml_load_typed(schema=RayCastMapConfig, data="{depth: {crop_radius: -1.0}}"))

@@ -9,7 +9,6 @@ and are dropped, as are depths outside [depth_min, depth_max] and points
 farther than `crop_radius` from the camera centre.
 """
 
-from __future__ import annotations
 
 import dataclasses as dc
 
@@ -29,6 +28,10 @@ class DepthToPointsConfig:
     crop_radius: float = 2.5
 
     def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raises ValueError naming the first bad field (yaml_load_typed skips __post_init__)."""
         if not 0.0 <= self.depth_min < self.depth_max:
             raise ValueError(
                 f"DepthToPointsConfig: need 0 <= depth_min < depth_max, got "

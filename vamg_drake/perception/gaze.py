@@ -30,7 +30,6 @@ whose optical axis points closest to the weighted centroid of the importance
 points, so an unobstructed target is centred as well as the grid allows.
 """
 
-from __future__ import annotations
 
 import dataclasses as dc
 import logging
@@ -77,6 +76,10 @@ class GazeConfig:
     target_spacing: float = 0.05
 
     def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raises ValueError naming the first bad field (yaml_load_typed skips __post_init__)."""
         if self.variant not in VARIANTS:
             raise ValueError(f"GazeConfig.variant must be one of {VARIANTS}, got {self.variant!r}")
         if self.num_pan < 1 or self.num_tilt < 1:
@@ -123,6 +126,7 @@ class GazeOptimizer:
 
     def __init__(self, intrinsics: CameraIntrinsics, config: GazeConfig | None = None):
         self.config = config or GazeConfig()
+        self.config.validate()
         self.intrinsics = intrinsics
         c = self.config
         pans = np.linspace(c.pan_min, c.pan_max, c.num_pan)

@@ -28,7 +28,6 @@ The voxel index doubles as the planner-facing occupancy representation:
 bool grid with origin and resolution), always in step with the points.
 """
 
-from __future__ import annotations
 
 import dataclasses as dc
 import logging
@@ -72,6 +71,11 @@ class RayCastMapConfig:
     max_points: int = 2_000_000
 
     def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raises ValueError naming the first bad field (yaml_load_typed skips __post_init__)."""
+        self.depth.validate()
         if not self.voxel_size > 0.0:
             raise ValueError(f"RayCastMapConfig.voxel_size must be positive, got {self.voxel_size}")
         if not self.carve_tolerance >= 0.0:
@@ -139,6 +143,7 @@ class PointMap:
 
     def __init__(self, intrinsics: CameraIntrinsics, config: RayCastMapConfig | None = None):
         self.config = config or RayCastMapConfig()
+        self.config.validate()
         self.intrinsics = intrinsics
         self._projector = DepthBackProjector(intrinsics, self.config.depth)
         # Points live in the first `_n` rows of capacity-doubling buffers; the
