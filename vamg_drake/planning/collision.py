@@ -253,19 +253,50 @@ class CollisionEnvironment:
 
 @numba.njit(cache=True)
 def _rasterize_primitives_2d(occ, origin, h, zs, test_r, box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl):
-    P = np.empty((zs.shape[0], 3))
-    d = np.empty(zs.shape[0])
-    for i in range(occ.shape[0]):
-        for j in range(occ.shape[1]):
-            if occ[i, j]:
-                continue
-            for k in range(zs.shape[0]):
-                P[k, 0] = origin[0] + i * h
-                P[k, 1] = origin[1] + j * h
-                P[k, 2] = zs[k]
-            _primitive_distance_kernel(P, box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, d)
-            if d.min() <= test_r:
-                occ[i, j] = True
+    """Marks cells whose centre column passes within test_r of a primitive.
+
+    Each primitive only visits the cells of its own xy bounding box.
+    """
+    nz = zs.shape[0]
+    P = np.empty((nz, 3))
+    d = np.empty(nz)
+    no_box = np.zeros((0, 3))
+    no_R = np.zeros((0, 3, 3))
+    no_v = np.zeros(0)
+    nb = box_p.shape[0]
+    for k in range(nb + cyl_p.shape[0]):
+        ex = np.zeros(3)
+        if k < nb:
+            for a in range(3):
+                for c in range(3):
+                    ex[a] += abs(box_R[k, a, c]) * box_half[k, c]
+            cx, cy = box_p[k, 0], box_p[k, 1]
+        else:
+            m = k - nb
+            for a in range(3):
+                ex[a] = abs(cyl_R[m, a, 2]) * cyl_hl[m] + cyl_r[m]
+            cx, cy = cyl_p[m, 0], cyl_p[m, 1]
+        i0 = max(int(math.floor((cx - ex[0] - test_r - origin[0]) / h)), 0)
+        i1 = min(int(math.ceil((cx + ex[0] + test_r - origin[0]) / h)), occ.shape[0] - 1)
+        j0 = max(int(math.floor((cy - ex[1] - test_r - origin[1]) / h)), 0)
+        j1 = min(int(math.ceil((cy + ex[1] + test_r - origin[1]) / h)), occ.shape[1] - 1)
+        for i in range(i0, i1 + 1):
+            for j in range(j0, j1 + 1):
+                if occ[i, j]:
+                    continue
+                for z in range(nz):
+                    P[z, 0] = origin[0] + i * h
+                    P[z, 1] = origin[1] + j * h
+                    P[z, 2] = zs[z]
+                if k < nb:
+                    _primitive_distance_kernel(P, box_p[k:k + 1], box_R[k:k + 1], box_half[k:k + 1],
+                                               no_box, no_R, no_v, no_v, d)
+                else:
+                    m = k - nb
+                    _primitive_distance_kernel(P, no_box, no_R, no_box, cyl_p[m:m + 1], cyl_R[m:m + 1],
+                                               cyl_r[m:m + 1], cyl_hl[m:m + 1], d)
+                if d.min() <= test_r:
+                    occ[i, j] = True
 
 
 @numba.njit(cache=True)
@@ -318,11 +349,11 @@ def primitive_distances(points: np.ndarray, env: CollisionEnvironment) -> np.nda
 # ----------------------------------------------------------------------------
 
 
-@numba.njit(cache=True, inline="always")
-def _link_transforms(q, head, parent, X_PJ, joint_type, axis, var_index, T):
+@numba.njit(cache=True)
+def _link_transforms(Q, b, head, parent, X_PJ, joint_type, axis, var_index, T):
     """T[i] (3x4) = X_W(link i) for configuration q (11,) and head (2,)."""
     L = parent.shape[0]
-    nq = q.shape[0]
+    nq = Q.shape[1]
     for i in range(L):
         k = var_index[i]
         # joint motion M (rotation R, translation t)
@@ -330,7 +361,7 @@ def _link_transforms(q, head, parent, X_PJ, joint_type, axis, var_index, T):
         t0, t1, t2 = 0.0, 0.0, 0.0
         if k >= 0:
             if k < nq:
-                v = q[k]
+                v = Q[b, k]
             elif k < nq + 2:
                 v = head[k - nq]
             else:
@@ -353,77 +384,33 @@ def _link_transforms(q, head, parent, X_PJ, joint_type, axis, var_index, T):
                 t0, t1, t2 = v * ax, v * ay, v * az
         # A = X_WP @ X_PJ (3x4)
         p = parent[i]
-        A = T[i]  # scratch: holds X_WJ before the joint motion is applied
-        if p < 0:
-            for a in range(3):
-                for b in range(4):
-                    A[a, b] = X_PJ[i, a, b]
-        else:
-            for a in range(3):
-                for b in range(4):
-                    s_ = T[p, a, 0] * X_PJ[i, 0, b] + T[p, a, 1] * X_PJ[i, 1, b] + T[p, a, 2] * X_PJ[i, 2, b]
-                    if b == 3:
-                        s_ += T[p, a, 3]
-                    A[a, b] = s_
+        # Row by row (no array views: they cost reference counting):
+        # A = X_WP @ X_PJ, then T[i] = A @ M.
         for a in range(3):
-            a0, a1, a2, a3 = A[a, 0], A[a, 1], A[a, 2], A[a, 3]
+            if p < 0:
+                a0, a1, a2, a3 = X_PJ[i, a, 0], X_PJ[i, a, 1], X_PJ[i, a, 2], X_PJ[i, a, 3]
+            else:
+                w0, w1, w2, w3 = T[p, a, 0], T[p, a, 1], T[p, a, 2], T[p, a, 3]
+                a0 = w0 * X_PJ[i, 0, 0] + w1 * X_PJ[i, 1, 0] + w2 * X_PJ[i, 2, 0]
+                a1 = w0 * X_PJ[i, 0, 1] + w1 * X_PJ[i, 1, 1] + w2 * X_PJ[i, 2, 1]
+                a2 = w0 * X_PJ[i, 0, 2] + w1 * X_PJ[i, 1, 2] + w2 * X_PJ[i, 2, 2]
+                a3 = w0 * X_PJ[i, 0, 3] + w1 * X_PJ[i, 1, 3] + w2 * X_PJ[i, 2, 3] + w3
             T[i, a, 0] = a0 * r00 + a1 * r10 + a2 * r20
             T[i, a, 1] = a0 * r01 + a1 * r11 + a2 * r21
             T[i, a, 2] = a0 * r02 + a1 * r12 + a2 * r22
             T[i, a, 3] = a0 * t0 + a1 * t1 + a2 * t2 + a3
 
 
-@numba.njit(cache=True, inline="always")
-def _sphere_env_free(cx, cy, cz, r, has_field, dist, origin, h, margin,
-                     box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl):
-    if has_field:
-        ix = int(math.floor((cx - origin[0]) / h + 0.5))
-        iy = int(math.floor((cy - origin[1]) / h + 0.5))
-        iz = int(math.floor((cz - origin[2]) / h + 0.5))
-        if 0 <= ix < dist.shape[0] and 0 <= iy < dist.shape[1] and 0 <= iz < dist.shape[2]:
-            if dist[ix, iy, iz] - margin <= r:
-                return False
-    for k in range(box_p.shape[0]):
-        d2 = 0.0
-        dx = cx - box_p[k, 0]
-        dy = cy - box_p[k, 1]
-        dz = cz - box_p[k, 2]
-        for a in range(3):
-            lc = box_R[k, 0, a] * dx + box_R[k, 1, a] * dy + box_R[k, 2, a] * dz
-            e = abs(lc) - box_half[k, a]
-            if e > 0:
-                d2 += e * e
-        if d2 <= r * r:
-            return False
-    for k in range(cyl_p.shape[0]):
-        dx = cx - cyl_p[k, 0]
-        dy = cy - cyl_p[k, 1]
-        dz = cz - cyl_p[k, 2]
-        lx = cyl_R[k, 0, 0] * dx + cyl_R[k, 1, 0] * dy + cyl_R[k, 2, 0] * dz
-        ly = cyl_R[k, 0, 1] * dx + cyl_R[k, 1, 1] * dy + cyl_R[k, 2, 1] * dz
-        lz = cyl_R[k, 0, 2] * dx + cyl_R[k, 1, 2] * dy + cyl_R[k, 2, 2] * dz
-        er = math.sqrt(lx * lx + ly * ly) - cyl_r[k]
-        ez = abs(lz) - cyl_hl[k]
-        d2 = 0.0
-        if er > 0:
-            d2 += er * er
-        if ez > 0:
-            d2 += ez * ez
-        if d2 <= r * r:
-            return False
-    return True
-
-
 @numba.njit(cache=True)
-def _config_free(q, head, parent, X_PJ, joint_type, axis, var_index,
-                 sph_link, sph_c, sph_r, pairs, q_lo, q_hi, T, C,
+def _config_free(Q, b, head, parent, X_PJ, joint_type, axis, var_index,
+                 sph_link, sph_c, sph_r, pairs, q_lo, q_hi, T, C, PW,
                  has_field, dist, origin, h, margin,
                  box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
                  prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere):
-    for j in range(q.shape[0]):
-        if not (q[j] >= q_lo[j] and q[j] <= q_hi[j]):  # also rejects NaN
+    for j in range(Q.shape[1]):
+        if not (Q[b, j] >= q_lo[j] and Q[b, j] <= q_hi[j]):  # also rejects NaN
             return False
-    _link_transforms(q, head, parent, X_PJ, joint_type, axis, var_index, T)
+    _link_transforms(Q, b, head, parent, X_PJ, joint_type, axis, var_index, T)
     S = sph_link.shape[0]
     for s in range(S):
         li = sph_link[s]
@@ -432,9 +419,43 @@ def _config_free(q, head, parent, X_PJ, joint_type, axis, var_index,
         cy = T[li, 1, 0] * px + T[li, 1, 1] * py + T[li, 1, 2] * pz + T[li, 1, 3]
         cz = T[li, 2, 0] * px + T[li, 2, 1] * py + T[li, 2, 2] * pz + T[li, 2, 3]
         C[s, 0], C[s, 1], C[s, 2] = cx, cy, cz
-        if check_env[s]:
-            if not _sphere_env_free(cx, cy, cz, sph_r[s], has_field, dist, origin, h, margin,
-                                    box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl):
+        if not check_env[s]:
+            continue
+        r = sph_r[s]
+        if has_field:
+            ix = int(math.floor((cx - origin[0]) / h + 0.5))
+            iy = int(math.floor((cy - origin[1]) / h + 0.5))
+            iz = int(math.floor((cz - origin[2]) / h + 0.5))
+            if 0 <= ix < dist.shape[0] and 0 <= iy < dist.shape[1] and 0 <= iz < dist.shape[2]:
+                if dist[ix, iy, iz] - margin <= r:
+                    return False
+        for k in range(box_p.shape[0]):
+            dx = cx - box_p[k, 0]
+            dy = cy - box_p[k, 1]
+            dz = cz - box_p[k, 2]
+            d2 = 0.0
+            for a in range(3):
+                lc = box_R[k, 0, a] * dx + box_R[k, 1, a] * dy + box_R[k, 2, a] * dz
+                e = abs(lc) - box_half[k, a]
+                if e > 0:
+                    d2 += e * e
+            if d2 <= r * r:
+                return False
+        for k in range(cyl_p.shape[0]):
+            dx = cx - cyl_p[k, 0]
+            dy = cy - cyl_p[k, 1]
+            dz = cz - cyl_p[k, 2]
+            lx = cyl_R[k, 0, 0] * dx + cyl_R[k, 1, 0] * dy + cyl_R[k, 2, 0] * dz
+            ly = cyl_R[k, 0, 1] * dx + cyl_R[k, 1, 1] * dy + cyl_R[k, 2, 1] * dz
+            lz = cyl_R[k, 0, 2] * dx + cyl_R[k, 1, 2] * dy + cyl_R[k, 2, 2] * dz
+            er = math.sqrt(lx * lx + ly * ly) - cyl_r[k]
+            ez = abs(lz) - cyl_hl[k]
+            d2 = 0.0
+            if er > 0:
+                d2 += er * er
+            if ez > 0:
+                d2 += ez * ez
+            if d2 <= r * r:
                 return False
     for k in range(pairs.shape[0]):
         a = pairs[k, 0]
@@ -446,20 +467,24 @@ def _config_free(q, head, parent, X_PJ, joint_type, axis, var_index,
         if dx * dx + dy * dy + dz * dz <= rr * rr:
             return False
     # Spheres against the exact primitives of the robot body (self-collision).
+    # World poses of the primitives first: PW[k] = T[link] @ X_LS (3x4).
+    for k in range(prim_link.shape[0]):
+        li = prim_link[k]
+        for a in range(3):
+            for c in range(4):
+                v = T[li, a, 0] * prim_X[k, 0, c] + T[li, a, 1] * prim_X[k, 1, c] + T[li, a, 2] * prim_X[k, 2, c]
+                if c == 3:
+                    v += T[li, a, 3]
+                PW[k, a, c] = v
     for n in range(bp_prim.shape[0]):
         k = bp_prim[n]
         sidx = bp_sphere[n]
-        li = prim_link[k]
-        # p in the shape frame S: X_WS = T[li] @ X_LS.
-        dx = C[sidx, 0] - T[li, 0, 3]
-        dy = C[sidx, 1] - T[li, 1, 3]
-        dz = C[sidx, 2] - T[li, 2, 3]
-        lx = T[li, 0, 0] * dx + T[li, 1, 0] * dy + T[li, 2, 0] * dz - prim_X[k, 0, 3]
-        ly = T[li, 0, 1] * dx + T[li, 1, 1] * dy + T[li, 2, 1] * dz - prim_X[k, 1, 3]
-        lz = T[li, 0, 2] * dx + T[li, 1, 2] * dy + T[li, 2, 2] * dz - prim_X[k, 2, 3]
-        sx = prim_X[k, 0, 0] * lx + prim_X[k, 1, 0] * ly + prim_X[k, 2, 0] * lz
-        sy = prim_X[k, 0, 1] * lx + prim_X[k, 1, 1] * ly + prim_X[k, 2, 1] * lz
-        sz = prim_X[k, 0, 2] * lx + prim_X[k, 1, 2] * ly + prim_X[k, 2, 2] * lz
+        dx = C[sidx, 0] - PW[k, 0, 3]
+        dy = C[sidx, 1] - PW[k, 1, 3]
+        dz = C[sidx, 2] - PW[k, 2, 3]
+        sx = PW[k, 0, 0] * dx + PW[k, 1, 0] * dy + PW[k, 2, 0] * dz
+        sy = PW[k, 0, 1] * dx + PW[k, 1, 1] * dy + PW[k, 2, 1] * dz
+        sz = PW[k, 0, 2] * dx + PW[k, 1, 2] * dy + PW[k, 2, 2] * dz
         if prim_kind[k] == 0:
             ex = max(abs(sx) - prim_half[k, 0], 0.0)
             ey = max(abs(sy) - prim_half[k, 1], 0.0)
@@ -487,11 +512,12 @@ def _batch_free(Q, head, parent, X_PJ, joint_type, axis, var_index,
     """
     T = np.empty((parent.shape[0], 3, 4))
     C = np.empty((sph_link.shape[0], 3))
+    PW = np.empty((prim_link.shape[0], 3, 4))
     first = -1
     for n in range(order.shape[0]):
         b = order[n]
-        ok = _config_free(Q[b], head, parent, X_PJ, joint_type, axis, var_index,
-                          sph_link, sph_c, sph_r, pairs, q_lo, q_hi, T, C,
+        ok = _config_free(Q, b, head, parent, X_PJ, joint_type, axis, var_index,
+                          sph_link, sph_c, sph_r, pairs, q_lo, q_hi, T, C, PW,
                           has_field, dist, origin, h, margin,
                           box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
                           prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere)
@@ -507,7 +533,7 @@ def _batch_free(Q, head, parent, X_PJ, joint_type, axis, var_index,
 def _sphere_centers(Q, head, parent, X_PJ, joint_type, axis, var_index, sph_link, sph_c, out):
     T = np.empty((parent.shape[0], 3, 4))
     for b in range(Q.shape[0]):
-        _link_transforms(Q[b], head, parent, X_PJ, joint_type, axis, var_index, T)
+        _link_transforms(Q, b, head, parent, X_PJ, joint_type, axis, var_index, T)
         for s in range(sph_link.shape[0]):
             li = sph_link[s]
             for a in range(3):

@@ -66,7 +66,9 @@ def make_problem(seed: int, checker: CollisionChecker, min_distance: float = 3.0
     cc = checker.with_environment(CollisionEnvironment.from_primitives(obstacles))
     q_start = None
     for _ in range(max_tries):
-        q = layout.stow_configuration(rng.uniform(0.5, 1.3), rng.uniform(0.5, depth - 0.5), rng.uniform(-np.pi, np.pi))
+        q = rng.uniform(layout.SAMPLE_LOWER, layout.SAMPLE_UPPER)
+        q[0] = rng.uniform(0.5, 1.3)
+        q[1] = rng.uniform(0.5, depth - 0.5)
         if cc.is_free(q[None])[0]:
             q_start = q
             break

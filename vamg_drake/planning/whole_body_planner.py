@@ -237,6 +237,7 @@ class WholeBodyPlanner:
                 path, reason, message = self._attempt(qs, qg, rng, deadline, timings)
             except _Timeout:
                 path, reason, message = None, FailureReason.TIMEOUT, "attempt budget exceeded"
+                timings["arm"] += 1e3 * (time.perf_counter() - self._stage_start)
             if path is not None:
                 tr = time.perf_counter()
                 traj = smoothing.time_parametrize(path)
@@ -255,11 +256,11 @@ class WholeBodyPlanner:
             if time.perf_counter() > deadline:
                 raise _Timeout()
 
-        tb = time.perf_counter()
+        tb = self._stage_start = time.perf_counter()
         base_moves = np.hypot(*(qg[:2] - qs[:2])) > 1e-3 or abs(qg[2] - qs[2]) > 1e-3
         if not base_moves:
             timings["base"] += 1e3 * (time.perf_counter() - tb)
-            ta = time.perf_counter()
+            ta = self._stage_start = time.perf_counter()
             arm = self._arm_motion(qs[:3], qs[3:], qg[3:], rng, deadline)
             timings["arm"] += 1e3 * (time.perf_counter() - ta)
             if arm is None:
@@ -278,29 +279,31 @@ class WholeBodyPlanner:
         qg = qg.copy()
         qg[2] = goal_theta
         check_deadline()
-        ta = time.perf_counter()
+        ta = self._stage_start = time.perf_counter()
         # (a) arm interpolated in sync with the whole base path.
         Q = self._synchronized(poses, qs[3:], qg[3:])
         if checker.first_collision(densify(Q, checker)) < 0:
             timings["arm"] += 1e3 * (time.perf_counter() - ta)
             return self._refine([Q], timings, rng, deadline), "", ""
-        # (b) fold, travel, unfold.
+        # (b) fold, travel, unfold. The travel pose's roll joints are taken
+        # nearest to the start's so that the whole path stays unwrapped.
+        travel = _unwrap_toward(qs, np.concatenate([qs[:3], self.travel]))[3:]
         pieces = []
         fold_k = 0
-        travel_close = np.max(np.abs(qs[3:] - self.travel)) < 1e-6
+        travel_close = np.max(np.abs(qs[3:] - travel)) < 1e-6
         if not travel_close:
             done = False
             for f in cfg.fold_fractions:
                 check_deadline()
                 if f <= 0.0:
-                    arm = self._arm_motion(qs[:3], qs[3:], self.travel, rng, deadline)
+                    arm = self._arm_motion(qs[:3], qs[3:], travel, rng, deadline)
                     if arm is not None:
                         pieces.append(arm)
                         done = True
                         break
                     continue
                 k = self._index_at_fraction(poses, f)
-                Qf = self._synchronized(poses[: k + 1], qs[3:], self.travel)
+                Qf = self._synchronized(poses[: k + 1], qs[3:], travel)
                 if checker.first_collision(densify(Qf, checker)) < 0:
                     pieces.append(Qf)
                     fold_k = k
@@ -312,16 +315,16 @@ class WholeBodyPlanner:
         for f in cfg.placement_fractions:
             check_deadline()
             k = max(self._index_at_fraction(poses, f), fold_k)
-            travel_part = self._synchronized(poses[fold_k: k + 1], self.travel, self.travel)
+            travel_part = self._synchronized(poses[fold_k: k + 1], travel, travel)
             if checker.first_collision(densify(travel_part, checker)) >= 0:
                 continue
             if f >= 1.0 or k >= poses.shape[0] - 1:
-                arm = self._arm_motion(poses[-1], self.travel, qg[3:], rng, deadline)
+                arm = self._arm_motion(poses[-1], travel, qg[3:], rng, deadline)
                 if arm is None:
                     continue
                 tail = [arm]
             else:
-                Qu = self._synchronized(poses[k:], self.travel, qg[3:])
+                Qu = self._synchronized(poses[k:], travel, qg[3:])
                 if checker.first_collision(densify(Qu, checker)) >= 0:
                     continue
                 tail = [Qu]
@@ -378,10 +381,12 @@ class WholeBodyPlanner:
 
         lo = layout.SAMPLE_LOWER[3:]
         hi = layout.SAMPLE_UPPER[3:]
-        # Continuous joints: sample around the start so paths stay unwrapped.
+        # Continuous joints: one turn around the ends' midpoint (the ends are
+        # unwrapped toward each other), so the path stays unwrapped.
         c = layout.IS_CONTINUOUS[3:]
-        lo = np.where(c, arm_a - np.pi, lo)
-        hi = np.where(c, arm_a + np.pi, hi)
+        mid = 0.5 * (arm_a + arm_b)
+        lo = np.where(c, mid - np.pi, lo)
+        hi = np.where(c, mid + np.pi, hi)
         w = np.where(np.arange(8) == 0, 5.0, 1.0)  # torso metres weigh more
         path, why = rrt_connect(arm_a, arm_b, motion_free, lo, hi, rng,
                                 RRTConnectConfig(step=self.config.rrt_step,
