@@ -1,0 +1,126 @@
+"""SubgoalPolicy: the LeafSystem adapter over `vamg_drake.policy.behaviour_tree`."""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import logging
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
+
+from vamg_drake.policy.behaviour_tree import (
+    MotionEvent,
+    Phase,
+    PolicyInputs,
+    SubgoalBehaviour,
+    SubgoalCommand,
+)
+from vamg_drake.robot import layout
+
+_log = logging.getLogger(__name__)
+
+
+@dc.dataclass(frozen=True)
+class MotionFeedback:
+    """What the motion layer reports about goal ``goal_id`` (value of ``motion_feedback``)."""
+
+    goal_id: int = -1
+    event: MotionEvent = MotionEvent.NONE
+
+
+@dc.dataclass
+class SubgoalPolicyConfig:
+    """Parameters of the SubgoalPolicy system."""
+
+    #: Update period [s].
+    period: float = 0.1
+    #: Without a motion_feedback input, a goal counts as reached when every joint
+    #: of q is within this distance of it [m or rad].
+    reach_tolerance: float = 0.03
+
+
+def _initial_command() -> SubgoalCommand:
+    return SubgoalCommand(0, np.full(layout.NQ, np.nan), "hold", Phase.IDLE, layout.GRIPPER_MAX_OPENING, np.full(2, np.nan))
+
+
+class SubgoalPolicy(LeafSystem):
+    """The subgoal policy pi_g: picks the goal g_t with the behaviour tree.
+
+    .. pydrake_system::
+
+        name: SubgoalPolicy
+        input_ports:
+        - point_map (PointMapSnapshot or None)
+        - robot_configuration (11-vector q)
+        - target (3-vector p_WT)
+        - motion_feedback (MotionFeedback, optional)
+        output_ports:
+        - goal (SubgoalCommand)
+        - phase (str, the Phase value)
+        - gripper_command (1-vector: finger gap [m])
+
+    The behaviour tree (``behaviour``) lives in the system object, not in the
+    Context: use one Context per SubgoalPolicy instance. Its tree status,
+    history and failure counts are inspectable for tests and logs. Without a
+    connected ``motion_feedback``, a goal is reached when q is within
+    ``reach_tolerance`` of it; motion failures then need the feedback port.
+    A sampler error or bad input is logged and recorded as a stage failure;
+    it never raises inside an episode.
+    """
+
+    def __init__(self, behaviour: SubgoalBehaviour, config: SubgoalPolicyConfig | None = None) -> None:
+        super().__init__()
+        self._behaviour = behaviour
+        self._config = config or SubgoalPolicyConfig()
+        self._map_port = self.DeclareAbstractInputPort("point_map", AbstractValue.Make(None))
+        self._q_port = self.DeclareVectorInputPort("robot_configuration", layout.NQ)
+        self._target_port = self.DeclareVectorInputPort("target", 3)
+        self._feedback_port = self.DeclareAbstractInputPort("motion_feedback", AbstractValue.Make(MotionFeedback()))
+        self._command_index = self.DeclareAbstractState(AbstractValue.Make(_initial_command()))
+        self._handled_index = self.DeclareAbstractState(AbstractValue.Make(MotionFeedback()))
+        self._gripper_index = self.DeclareDiscreteState(BasicVector([layout.GRIPPER_MAX_OPENING]))
+        self.DeclareStateOutputPort("goal", self._command_index)
+        self.DeclareAbstractOutputPort(
+            "phase", lambda: AbstractValue.Make(""), self._calc_phase, {self.abstract_state_ticket(self._command_index)}
+        )
+        self.DeclareStateOutputPort("gripper_command", self._gripper_index)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(self._config.period, 0.0, self._update)
+
+    @property
+    def behaviour(self) -> SubgoalBehaviour:
+        return self._behaviour
+
+    def _calc_phase(self, context, value: AbstractValue) -> None:
+        value.set_value(context.get_abstract_state(self._command_index).get_value().phase.value)
+
+    def _event(self, context, q: np.ndarray, command: SubgoalCommand, state) -> MotionEvent:
+        if self._feedback_port.HasValue(context):
+            feedback: MotionFeedback = self._feedback_port.Eval(context)
+            handled: MotionFeedback = context.get_abstract_state(self._handled_index).get_value()
+            if feedback.goal_id == command.goal_id and feedback.event != MotionEvent.NONE and feedback != handled:
+                state.get_mutable_abstract_state(self._handled_index).set_value(feedback)
+                return feedback.event
+            return MotionEvent.NONE
+        moving = command.motion in ("plan", "linear")
+        if moving and np.all(np.abs(layout.wrap_configuration(q - command.q_goal)) <= self._config.reach_tolerance):
+            return MotionEvent.REACHED
+        return MotionEvent.NONE
+
+    def _update(self, context, state) -> EventStatus:
+        command: SubgoalCommand = context.get_abstract_state(self._command_index).get_value()
+        q = np.asarray(self._q_port.Eval(context), dtype=float)
+        if not np.all(np.isfinite(q)):
+            _log.error("SubgoalPolicy: robot_configuration is not finite (%s); holding", q)
+            return EventStatus.Succeeded()
+        snapshot = self._map_port.Eval(context) if self._map_port.HasValue(context) else None
+        p_WM = np.zeros((0, 3)) if snapshot is None else np.asarray(snapshot.points, dtype=float)
+        target = np.asarray(self._target_port.Eval(context), dtype=float)
+        inputs = PolicyInputs(context.get_time(), q, p_WM, target)
+        event = self._event(context, q, command, state)
+        new_command = self._behaviour.step(inputs, event)
+        if new_command.goal_id != command.goal_id or new_command.phase != command.phase:
+            _log.info("SubgoalPolicy t=%.2f: %s (%s)", context.get_time(), new_command.phase.value, new_command.reason)
+        state.get_mutable_abstract_state(self._command_index).set_value(new_command)
+        state.get_mutable_discrete_state(self._gripper_index).set_value([new_command.gripper_opening])
+        return EventStatus.Succeeded()
