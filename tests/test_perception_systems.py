@@ -50,6 +50,15 @@ def test_raycast_map_system_maps_and_rejects_nan_inputs(caplog):
     snapshot = system.GetOutputPort("point_map").Eval(context)
     assert snapshot.num_points == n and snapshot.revision == revision
     assert "camera pose" in caplog.text and "robot spheres" in caplog.text
+    assert system.map_core(context).num_points == n
+    # A new episode (fresh context, initialized by its simulator) starts from an empty map.
+    context2 = system.CreateDefaultContext()
+    system.GetInputPort("depth_image").FixValue(context2, _image(np.full_like(depth, np.inf)))
+    system.GetInputPort("X_WC").FixValue(context2, RigidTransform(X_WC))
+    system.GetInputPort("robot_configuration").FixValue(context2, q)
+    Simulator(system, context2).AdvanceTo(0.05)
+    assert system.map_core(context2).num_points == 0
+    assert system.map_core(context).num_points == n
 
 
 def test_gaze_system_follows_the_trajectory_then_the_target():

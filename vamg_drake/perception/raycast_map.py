@@ -30,6 +30,7 @@ bool grid with origin and resolution), always in step with the points.
 
 
 import dataclasses as dc
+import functools
 import logging
 
 import numba
@@ -123,19 +124,26 @@ class PointMapSnapshot:
 
     Attributes:
         points: (n, 3) world points p_WP, read-only.
-        voxel_indices: (n, 3) int64 voxel coordinates floor(p / voxel_size), read-only.
+        voxel_keys: (n,) int64 packed voxel keys of the points (see `voxel_indices`), read-only.
         voxel_size: voxel edge [m].
         revision: incremented by every update that changed the map.
     """
 
     points: np.ndarray
-    voxel_indices: np.ndarray
+    voxel_keys: np.ndarray
     voxel_size: float
     revision: int
 
     @property
     def num_points(self) -> int:
         return int(self.points.shape[0])
+
+    @functools.cached_property
+    def voxel_indices(self) -> np.ndarray:
+        """(n, 3) int64 voxel coordinates floor(p / voxel_size) of the points (decoded on first use)."""
+        idx = _decode_keys(self.voxel_keys)
+        idx.flags.writeable = False
+        return idx
 
 
 class PointMap:
@@ -207,10 +215,10 @@ class PointMap:
     def snapshot(self) -> PointMapSnapshot:
         """An immutable copy for output ports and other consumers."""
         pts = self._points.copy()
-        idx = self.occupied_voxels()
+        keys = self._keys.copy()
         pts.flags.writeable = False
-        idx.flags.writeable = False
-        return PointMapSnapshot(points=pts, voxel_indices=idx, voxel_size=self.config.voxel_size, revision=self.revision)
+        keys.flags.writeable = False
+        return PointMapSnapshot(points=pts, voxel_keys=keys, voxel_size=self.config.voxel_size, revision=self.revision)
 
     def contains_voxel_of(self, p_W: np.ndarray) -> np.ndarray:
         """(M,) True where the voxel of each point p_W (M, 3) holds a map point."""
