@@ -198,7 +198,9 @@ def test_occupancy_grid_and_voxel_lookup_follow_the_points():
     assert m.contains_voxel_of(np.array([[0.04, 0.04, 0.54], [0.2, 0.2, 0.2]])).tolist() == [True, False]
     snap = m.snapshot()
     assert snap.num_points == 2 and not snap.points.flags.writeable
-    np.testing.assert_array_equal(snap.voxel_indices, np.floor(snap.points / 0.05).astype(int))
+    np.testing.assert_array_equal(snap.voxel_indices, m.occupied_voxels())
+    assert np.all(snap.points >= snap.voxel_indices * 0.05 - 1e-9)
+    assert np.all(snap.points <= (snap.voxel_indices + 1) * 0.05 + 1e-9)
     with pytest.raises(ValueError, match="voxel_size"):
         RayCastMapConfig(voxel_size=0.0)
 
