@@ -1,0 +1,94 @@
+"""Collision checker: conservative against exact geometry, matches the sphere model."""
+
+import numpy as np
+import pytest
+
+from vamg_drake.planning.collision import (
+    CollisionChecker, CollisionCheckerConfig, CollisionEnvironment, DistanceField, bisection_order, densify,
+)
+from vamg_drake.planning.problems import furnished_room
+from vamg_drake.robot import layout
+
+
+@pytest.fixture(scope="module")
+def room():
+    return furnished_room(np.random.default_rng(3))
+
+
+def _random_configs(rng, n):
+    Q = rng.uniform(layout.SAMPLE_LOWER, layout.SAMPLE_UPPER, (n, layout.NQ))
+    Q[:, 0] = rng.uniform(0.0, 6.0, n)
+    Q[:, 1] = rng.uniform(0.0, 5.0, n)
+    return Q
+
+
+def test_distance_field_bound_is_conservative():
+    rng = np.random.default_rng(0)
+    points = rng.uniform(-1.0, 1.0, (400, 3))
+    field = DistanceField.from_points(points, resolution=0.05)
+    centers = rng.uniform(-1.2, 1.2, (3000, 3))
+    idx = np.floor((centers - field.origin) / field.resolution + 0.5).astype(int)
+    inside = np.all((idx >= 0) & (idx < field.dist.shape), axis=1)
+    d_field = field.dist[tuple(idx[inside].T)] - field.margin
+    d_true = np.min(np.linalg.norm(centers[inside, None] - points[None], axis=2), axis=1)
+    assert np.all(d_field <= d_true + 1e-9)
+    assert np.mean(d_true - d_field) < 2.0 * field.margin  # and not uselessly loose
+
+
+def test_map_field_free_implies_exactly_free(room):
+    env = CollisionEnvironment.from_primitives(room)
+    exact = CollisionChecker.for_fetch(env, CollisionCheckerConfig(motion_resolution=0.0))
+    voxel = exact.with_environment(env.voxelized(0.03))
+    Q = _random_configs(np.random.default_rng(1), 3000)
+    f_exact, f_voxel = exact.is_free(Q), voxel.is_free(Q)
+    assert not np.any(f_voxel & ~f_exact)
+    assert f_voxel.sum() > 0.7 * f_exact.sum()
+
+
+def test_self_collision_matches_sphere_model():
+    from vamg_drake.robot.spheres import SphereModel
+
+    checker = CollisionChecker.for_fetch(CollisionEnvironment(), CollisionCheckerConfig(motion_resolution=0.0))
+    Q = _random_configs(np.random.default_rng(2), 3000)
+    expected = SphereModel.load().self_collision_free(Q) & layout.within_limits(Q)
+    np.testing.assert_array_equal(checker.is_free(Q), expected)
+
+
+def test_spheres_free_implies_drake_exact_geometry_free(room):
+    from vamg_drake.planning.drake_reference import DrakeCollisionWorld
+
+    env = CollisionEnvironment.from_primitives(room)
+    checker = CollisionChecker.for_fetch(env, CollisionCheckerConfig(motion_resolution=0.0))
+    drake = DrakeCollisionWorld(room)
+    Q = _random_configs(np.random.default_rng(4), 400)
+    free = checker.is_free(Q)
+    assert free.sum() > 50
+    assert not any(drake.in_collision(q) for q in Q[free])
+
+
+def test_limits_nan_and_batch_shape_are_rejected():
+    checker = CollisionChecker.for_fetch(CollisionEnvironment())
+    q = layout.stow_configuration(0.0, 0.0, 0.0)
+    bad = np.stack([q, q, q])
+    bad[1, layout.TORSO] = 1.0
+    bad[2, 5] = np.nan
+    np.testing.assert_array_equal(checker.is_free(bad), [True, False, False])
+    with pytest.raises(ValueError, match="shape"):
+        checker.is_free(np.zeros((2, 7)))
+
+
+def test_densify_respects_motion_resolution():
+    checker = CollisionChecker.for_fetch(CollisionEnvironment())
+    a = layout.stow_configuration(0.0, 0.0, 0.0)
+    b = layout.stow_configuration(1.0, 0.5, 2.0)
+    dense = densify(np.stack([a, b]), checker)
+    steps = checker.sphere_displacement_bound(np.diff(dense, axis=0))
+    assert steps.max() <= checker.config.motion_resolution + 1e-12
+    assert sorted(bisection_order(9).tolist()) == list(range(9))
+
+
+def test_empty_map_is_free():
+    env = CollisionEnvironment.from_points(np.zeros((0, 3)))
+    checker = CollisionChecker.for_fetch(env)
+    assert env.is_empty
+    assert checker.is_free(layout.stow_configuration(0.0, 0.0, 0.0)[None])[0]

@@ -1,0 +1,106 @@
+"""Whole-body planner: plans are valid in Drake's exact geometry, failures say why."""
+
+import numpy as np
+import pytest
+
+from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment
+from vamg_drake.planning.problems import make_problem
+from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig, WholeBodyPlanner
+from vamg_drake.robot import layout
+
+# Generous budgets: tests check correctness, benchmarks/bench_planner.py speed.
+CONFIG = PlannerConfig(attempt_budget_s=5.0)
+
+
+@pytest.fixture(scope="module")
+def base_checker():
+    return CollisionChecker.for_fetch(CollisionEnvironment())
+
+
+def _dense_1cm(q: np.ndarray, checker: CollisionChecker) -> np.ndarray:
+    from vamg_drake.planning.collision import densify
+
+    return densify(q, checker, resolution=0.01)
+
+
+@pytest.mark.parametrize("seed", [4, 7])
+def test_plan_in_generated_room_is_free_in_drake_exact_geometry(seed, base_checker):
+    from vamg_drake.planning.drake_reference import DrakeCollisionWorld
+
+    problem = make_problem(seed, base_checker)
+    env = CollisionEnvironment.from_primitives(problem.obstacles).voxelized(0.03)  # the map's view
+    planner = WholeBodyPlanner.for_fetch(env, CONFIG)
+    result = planner.plan(problem.q_start, problem.q_goal)
+    assert result.success, result.message
+    traj = result.trajectory
+    np.testing.assert_allclose(traj.q[0], problem.q_start)
+    np.testing.assert_allclose(layout.wrap_configuration(traj.q[-1]), layout.wrap_configuration(problem.q_goal),
+                               atol=1e-9)
+    assert traj.max_rate_ratio() <= 1.0 + 1e-9
+    drake = DrakeCollisionWorld(problem.obstacles)
+    dense = _dense_1cm(traj.q, planner.checker)
+    assert np.all(layout.within_limits(dense))
+    colliding = [i for i, q in enumerate(dense) if drake.in_collision(q)]
+    assert colliding == []
+
+
+def test_same_seed_gives_the_same_plan(base_checker):
+    problem = make_problem(8, base_checker)
+    env = CollisionEnvironment.from_primitives(problem.obstacles)
+    a = WholeBodyPlanner.for_fetch(env, CONFIG).plan(problem.q_start, problem.q_goal)
+    b = WholeBodyPlanner.for_fetch(env, CONFIG).plan(problem.q_start, problem.q_goal)
+    assert a.success and b.success
+    np.testing.assert_array_equal(a.trajectory.q, b.trajectory.q)
+    np.testing.assert_array_equal(a.trajectory.times, b.trajectory.times)
+
+
+def test_infeasible_and_bad_input_fail_fast_with_reason(base_checker):
+    problem = make_problem(4, base_checker)
+    env = CollisionEnvironment.from_primitives(problem.obstacles)
+    planner = WholeBodyPlanner.for_fetch(env, CONFIG)
+    qs, qg = problem.q_start, problem.q_goal
+    inside_table = qg.copy()
+    table = next(b for b in problem.obstacles if b.name == "table/base")
+    inside_table[:2] = table.p_WB[:2]
+    cases = {
+        FailureReason.GOAL_IN_COLLISION: (qs, inside_table),
+        FailureReason.START_IN_COLLISION: (inside_table, qg),
+    }
+    nan_goal = qg.copy()
+    nan_goal[5] = np.nan
+    out_of_limits = qg.copy()
+    out_of_limits[layout.TORSO] = 0.9
+    for reason, (a, b) in cases.items():
+        r = planner.plan(a, b)
+        assert not r.success and r.reason == reason and r.trajectory is None
+        assert r.timings["total"] < 100.0
+    for bad, field in [(nan_goal, "shoulder_lift_joint"), (out_of_limits, "torso_lift_joint")]:
+        r = planner.plan(qs, bad)
+        assert r.reason == FailureReason.INVALID_INPUT and field in r.message
+    r = planner.plan(qs, np.zeros(7))
+    assert r.reason == FailureReason.INVALID_INPUT and "11" in r.message
+
+
+def test_walled_in_goal_reports_no_base_path(base_checker):
+    from vamg_drake.world.primitives import WorldBox
+
+    walls = [WorldBox(f"pen/{k}", np.array(c, float), np.eye(3), np.array(h, float)) for k, (c, h) in enumerate([
+        ([3.0, 1.0, 0.5], [1.0, 0.05, 0.5]), ([3.0, 3.0, 0.5], [1.0, 0.05, 0.5]),
+        ([2.0, 2.0, 0.5], [0.05, 1.0, 0.5]), ([4.0, 2.0, 0.5], [0.05, 1.0, 0.5])])]
+    planner = WholeBodyPlanner.for_fetch(CollisionEnvironment.from_primitives(walls), CONFIG)
+    r = planner.plan(layout.stow_configuration(0.0, 0.0, 0.0), layout.stow_configuration(3.0, 2.0, 0.0))
+    assert not r.success and r.reason == FailureReason.NO_BASE_PATH
+
+
+def test_empty_map_plans_and_replan_check_sees_new_obstacles():
+    from vamg_drake.world.primitives import WorldBox
+
+    planner = WholeBodyPlanner.for_fetch(CollisionEnvironment.from_points(np.zeros((0, 3))), CONFIG)
+    qs = layout.stow_configuration(0.0, 0.0, 0.0)
+    qg = layout.stow_configuration(2.0, 0.0, 0.0)
+    r = planner.plan(qs, qg)
+    assert r.success
+    assert planner.trajectory_is_valid(r.trajectory)
+    blocker = WorldBox("new", np.array([1.0, 0.0, 0.5]), np.eye(3), np.array([0.1, 0.1, 0.5]))
+    planner.set_environment(CollisionEnvironment.from_primitives([blocker]))
+    assert not planner.trajectory_is_valid(r.trajectory)
