@@ -403,7 +403,7 @@ def _link_transforms(Q, b, head, parent, X_PJ, joint_type, axis, var_index, T):
 
 @numba.njit(cache=True)
 def _config_free(Q, b, head, parent, X_PJ, joint_type, axis, var_index,
-                 sph_link, sph_c, sph_r, pairs, q_lo, q_hi, T, C, PW,
+                 sph_link, sph_c, sph_r, sph_rs, pairs, q_lo, q_hi, T, C, PW,
                  has_field, dist, origin, h, margin,
                  box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
                  prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere):
@@ -463,7 +463,7 @@ def _config_free(Q, b, head, parent, X_PJ, joint_type, axis, var_index,
         dx = C[a, 0] - C[b, 0]
         dy = C[a, 1] - C[b, 1]
         dz = C[a, 2] - C[b, 2]
-        rr = sph_r[a] + sph_r[b]
+        rr = sph_rs[a] + sph_rs[b]
         if dx * dx + dy * dy + dz * dz <= rr * rr:
             return False
     # Spheres against the exact primitives of the robot body (self-collision).
@@ -494,14 +494,14 @@ def _config_free(Q, b, head, parent, X_PJ, joint_type, axis, var_index,
             er = max(math.sqrt(sx * sx + sy * sy) - prim_half[k, 0], 0.0)
             ez = max(abs(sz) - prim_half[k, 2], 0.0)
             d2 = er * er + ez * ez
-        if d2 <= sph_r[sidx] * sph_r[sidx]:
+        if d2 <= sph_rs[sidx] * sph_rs[sidx]:
             return False
     return True
 
 
 @numba.njit(cache=True)
 def _batch_free(Q, head, parent, X_PJ, joint_type, axis, var_index,
-                sph_link, sph_c, sph_r, pairs, q_lo, q_hi,
+                sph_link, sph_c, sph_r, sph_rs, pairs, q_lo, q_hi,
                 has_field, dist, origin, h, margin,
                 box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
                 prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere,
@@ -517,7 +517,7 @@ def _batch_free(Q, head, parent, X_PJ, joint_type, axis, var_index,
     for n in range(order.shape[0]):
         b = order[n]
         ok = _config_free(Q, b, head, parent, X_PJ, joint_type, axis, var_index,
-                          sph_link, sph_c, sph_r, pairs, q_lo, q_hi, T, C, PW,
+                          sph_link, sph_c, sph_r, sph_rs, pairs, q_lo, q_hi, T, C, PW,
                           has_field, dist, origin, h, margin,
                           box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
                           prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere)
@@ -581,12 +581,19 @@ class CollisionCheckerConfig:
             states along a motion; spheres are inflated by half of it.
         extra_padding: additional sphere inflation [m] (safety margin).
         head_pan, head_tilt: head pose assumed while planning [rad].
+        self_padding: sphere inflation [m] for self-collision tests. Every
+            checked configuration is exactly self-collision-free for the
+            sphere model (which covers the URDF geometry with slack); between
+            checked states the motion is covered by that slack rather than by
+            the motion-resolution inflation, which would fragment the arm's
+            free space (many tested sphere pairs sit a few cm apart).
     """
 
     motion_resolution: float = 0.03
     extra_padding: float = 0.0
     head_pan: float = 0.0
     head_tilt: float = 0.0
+    self_padding: float = 0.0
 
 
 class CollisionChecker:
@@ -611,6 +618,7 @@ class CollisionChecker:
         self.pairs = np.ascontiguousarray(np.asarray(self_collision_pairs, dtype=np.int64).reshape(-1, 2))
         self.padding = 0.5 * config.motion_resolution + config.extra_padding
         self.sph_r = self.base_radius + self.padding
+        self.sph_rs = self.base_radius + config.self_padding
         self.head = np.array([config.head_pan, config.head_tilt], dtype=float)
         self.q_lo = np.ascontiguousarray(layout.Q_LOWER, dtype=float)
         self.q_hi = np.ascontiguousarray(layout.Q_UPPER, dtype=float)
@@ -664,7 +672,7 @@ class CollisionChecker:
         e = self.env
         hf, dist, origin, h, margin = self._field
         return (self.head, t.parent, t.X_PJ, t.joint_type, t.axis, t.var_index,
-                self.sph_link, self.sph_c, self.sph_r, self.pairs, self.q_lo, self.q_hi,
+                self.sph_link, self.sph_c, self.sph_r, self.sph_rs, self.pairs, self.q_lo, self.q_hi,
                 hf, dist, origin, h, margin,
                 e.box_p, e.box_R, e.box_half, e.cyl_p, e.cyl_R, e.cyl_radius, e.cyl_half_length,
                 self.check_env, *self._body)

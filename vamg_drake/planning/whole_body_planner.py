@@ -88,7 +88,7 @@ class PlannerConfig:
     arm_shortcut_iterations: int = 25
     bspline_samples: int = 25
     rrt_step: float = 0.6
-    rrt_max_iterations: int = 3000
+    rrt_max_iterations: int = 400
     placement_fractions: tuple[float, ...] = (0.6, 0.8, 1.0)
     fold_fractions: tuple[float, ...] = (0.3, 0.0)
     hybrid_astar_max_expansions: int = 20000
@@ -285,53 +285,75 @@ class WholeBodyPlanner:
         if checker.first_collision(densify(Q, checker)) < 0:
             timings["arm"] += 1e3 * (time.perf_counter() - ta)
             return self._refine([Q], timings, rng, deadline), "", ""
-        # (b) fold, travel, unfold. The travel pose's roll joints are taken
+        # (b) fold into a carry pose, drive, unfold. Carry candidates: the
+        # travel pose (inside the footprint), the goal arm (unfold at the
+        # start), the start arm (unfold at the goal). Roll joints are taken
         # nearest to the start's so that the whole path stays unwrapped.
         travel = _unwrap_toward(qs, np.concatenate([qs[:3], self.travel]))[3:]
+        carries = [travel, qg[3:], qs[3:]]
+        for carry in carries:
+            path = self._via_carry(poses, qs, qg, carry, rng, deadline)
+            if path is not None:
+                timings["arm"] += 1e3 * (time.perf_counter() - ta)
+                return self._refine(path, timings, rng, deadline), "", ""
+        timings["arm"] += 1e3 * (time.perf_counter() - ta)
+        return None, FailureReason.NO_ARM_PATH, "no arm connection at any placement along the base path"
+
+    def _via_carry(self, poses, qs, qg, carry, rng, deadline) -> list[np.ndarray] | None:
+        """Pieces: fold qs->carry (synchronized over the first part of the base
+        path, or at the start placement), drive holding carry, unfold
+        carry->qg (synchronized over the last part, or at the goal placement)."""
+        cfg = self.config
+        checker = self.checker
+
+        def free(Q):
+            return checker.first_collision(densify(Q, checker)) < 0
+
         pieces = []
         fold_k = 0
-        travel_close = np.max(np.abs(qs[3:] - travel)) < 1e-6
-        if not travel_close:
+        if np.max(np.abs(qs[3:] - carry)) > 1e-9:
             done = False
             for f in cfg.fold_fractions:
-                check_deadline()
+                if time.perf_counter() > deadline:
+                    raise _Timeout()
                 if f <= 0.0:
-                    arm = self._arm_motion(qs[:3], qs[3:], travel, rng, deadline)
+                    arm = self._arm_motion(qs[:3], qs[3:], carry, rng, deadline)
                     if arm is not None:
                         pieces.append(arm)
                         done = True
                         break
                     continue
                 k = self._index_at_fraction(poses, f)
-                Qf = self._synchronized(poses[: k + 1], qs[3:], travel)
-                if checker.first_collision(densify(Qf, checker)) < 0:
+                Qf = self._synchronized(poses[: k + 1], qs[3:], carry)
+                if free(Qf):
                     pieces.append(Qf)
                     fold_k = k
                     done = True
                     break
             if not done:
-                timings["arm"] += 1e3 * (time.perf_counter() - ta)
-                return None, FailureReason.NO_ARM_PATH, "cannot fold the arm at the start"
-        for f in cfg.placement_fractions:
-            check_deadline()
+                return None
+        needs_unfold = np.max(np.abs(qg[3:] - carry)) > 1e-9
+        fractions = cfg.placement_fractions if needs_unfold else (1.0,)
+        for f in fractions:
+            if time.perf_counter() > deadline:
+                raise _Timeout()
             k = max(self._index_at_fraction(poses, f), fold_k)
-            travel_part = self._synchronized(poses[fold_k: k + 1], travel, travel)
-            if checker.first_collision(densify(travel_part, checker)) >= 0:
+            if f >= 1.0:
+                k = poses.shape[0] - 1
+            drive = self._synchronized(poses[fold_k: k + 1], carry, carry)
+            if not free(drive):
                 continue
-            if f >= 1.0 or k >= poses.shape[0] - 1:
-                arm = self._arm_motion(poses[-1], travel, qg[3:], rng, deadline)
+            if not needs_unfold:
+                return pieces + [drive]
+            if k >= poses.shape[0] - 1:
+                arm = self._arm_motion(poses[-1], carry, qg[3:], rng, deadline)
                 if arm is None:
                     continue
-                tail = [arm]
-            else:
-                Qu = self._synchronized(poses[k:], travel, qg[3:])
-                if checker.first_collision(densify(Qu, checker)) >= 0:
-                    continue
-                tail = [Qu]
-            timings["arm"] += 1e3 * (time.perf_counter() - ta)
-            return self._refine(pieces + [travel_part] + tail, timings, rng, deadline), "", ""
-        timings["arm"] += 1e3 * (time.perf_counter() - ta)
-        return None, FailureReason.NO_ARM_PATH, "no arm connection at any placement along the base path"
+                return pieces + [drive, arm]
+            Qu = self._synchronized(poses[k:], carry, qg[3:])
+            if free(Qu):
+                return pieces + [drive, Qu]
+        return None
 
     def _base_path(self, hybrid: HybridAStar, a, b, rng, deadline):
         if np.hypot(*(b[:2] - a[:2])) <= 1e-3:

@@ -1,0 +1,156 @@
+"""Benchmark of the whole-body planner on seeded problems in furnished rooms.
+
+Workload: `--problems` (default 50) problems from `vamg_drake.planning.problems`
+(seeds 0..N-1; start and goal random collision-free whole-body configurations
+on opposite sides of a 6 x 5 m room, a table and boxes between them).
+
+Measured per problem:
+  * ours: `WholeBodyPlanner.plan` wall time (planning + refinement + time
+    parametrization; the per-map 2D costmap is built before, timed apart as
+    costmap_ms), success, and every successful trajectory re-checked in
+    Drake's exact geometry at 1 cm sphere-displacement resolution
+    (ground_truth_collisions counts plans with any colliding state).
+  * reference: OMPL RRTConnect over the same 11-D space (base x, y, theta as
+    free coordinates: holonomic, so an easier problem than ours) with a Drake
+    SceneGraph validity check (`DrakeCollisionWorld`), the same total budget
+    (attempts x attempt budget), no simplification.
+
+With --json the last line is one JSON object of the metrics.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment, densify
+from vamg_drake.planning.drake_reference import DrakeCollisionWorld
+from vamg_drake.planning.problems import make_problem
+from vamg_drake.planning.whole_body_planner import PlannerConfig, WholeBodyPlanner
+from vamg_drake.robot import layout
+
+
+def ompl_reference(problem, drake: DrakeCollisionWorld, budget_s: float, resolution: float) -> tuple[bool, float]:
+    """(solved, ms) for OMPL RRTConnect with Drake validity checking."""
+    from ompl import base as ob
+    from ompl import geometric as og
+
+    try:
+        from ompl import util as ou
+
+        ou.setLogLevel(ou.LOG_ERROR)
+    except (ImportError, AttributeError):
+        pass
+    n = layout.NQ
+    space = ob.RealVectorStateSpace(n)
+    bounds = ob.RealVectorBounds(n)
+    lo = layout.SAMPLE_LOWER.copy()
+    hi = layout.SAMPLE_UPPER.copy()
+    lo[:2], hi[:2] = -0.2, [6.2, 5.2]
+    for i in range(n):
+        bounds.setLow(i, float(lo[i]))
+        bounds.setHigh(i, float(hi[i]))
+    space.setBounds(bounds)
+    space.setLongestValidSegmentFraction(resolution / space.getMaximumExtent())
+    ss = og.SimpleSetup(space)
+    q = np.empty(n)
+
+    def valid(state) -> bool:
+        for i in range(n):
+            q[i] = state[i]
+        return drake.is_valid(q)
+
+    ss.setStateValidityChecker(valid)
+    start, goal = space.allocState(), space.allocState()
+    qs = layout.wrap_configuration(problem.q_start)
+    qg = layout.wrap_configuration(problem.q_goal)
+    for i in range(n):
+        start[i] = float(qs[i])
+        goal[i] = float(qg[i])
+    ss.setStartAndGoalStates(start, goal)
+    ss.setPlanner(og.RRTConnect(ss.getSpaceInformation()))
+    t0 = time.perf_counter()
+    status = ss.solve(budget_s)
+    ms = 1e3 * (time.perf_counter() - t0)
+    solved = bool(status) and bool(ss.haveExactSolutionPath())
+    return solved, ms
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--problems", type=int, default=50)
+    parser.add_argument("--map", action="store_true",
+                        help="plan on a 0.03 m voxel map of the room instead of its exact primitives")
+    parser.add_argument("--no-reference", action="store_true")
+    parser.add_argument("--reference-resolution", type=float, default=0.05,
+                        help="OMPL motion-check step in configuration space (joint units)")
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args()
+
+    config = PlannerConfig()
+    budget_s = config.attempt_budget_s * config.max_attempts
+    base_checker = CollisionChecker.for_fetch(CollisionEnvironment())
+    rows = []
+    # Warm up the JIT (compiles or loads the cache) outside the timings.
+    warm = make_problem(10_000, base_checker)
+    WholeBodyPlanner.for_fetch(CollisionEnvironment.from_primitives(warm.obstacles), config).plan(
+        warm.q_start, warm.q_goal)
+    for seed in range(args.problems):
+        problem = make_problem(seed, base_checker)
+        env = CollisionEnvironment.from_primitives(problem.obstacles)
+        if args.map:
+            env = env.voxelized(0.03)
+        planner = WholeBodyPlanner.for_fetch(env, PlannerConfig(seed=seed))
+        t0 = time.perf_counter()
+        planner._base_planner()  # the per-map costmap
+        costmap_ms = 1e3 * (time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        result = planner.plan(problem.q_start, problem.q_goal)
+        ms = 1e3 * (time.perf_counter() - t0)
+        drake = DrakeCollisionWorld(problem.obstacles)
+        gt_bad = False
+        if result.success:
+            dense = densify(result.trajectory.q, planner.checker, resolution=0.01)
+            gt_bad = any(drake.in_collision(q) for q in dense) or not np.all(layout.within_limits(dense))
+        row = dict(seed=seed, success=result.success, reason=result.reason, ms=ms, costmap_ms=costmap_ms,
+                   attempts=result.attempts, gt_collision=gt_bad,
+                   duration_s=result.trajectory.duration if result.success else None)
+        if not args.no_reference:
+            row["ref_success"], row["ref_ms"] = ompl_reference(problem, drake, budget_s, args.reference_resolution)
+        rows.append(row)
+        if not args.json:
+            print(row, flush=True)
+
+    ms = np.array([r["ms"] for r in rows])
+    ok = np.array([r["success"] for r in rows])
+    metrics = dict(
+        problems=len(rows),
+        environment="voxel_map_0.03" if args.map else "exact_primitives",
+        success_rate=float(ok.mean()),
+        median_ms=float(np.median(ms)),
+        p95_ms=float(np.percentile(ms, 95)),
+        median_ms_successful=float(np.median(ms[ok])) if ok.any() else None,
+        costmap_median_ms=float(np.median([r["costmap_ms"] for r in rows])),
+        ground_truth_collisions=int(sum(r["gt_collision"] for r in rows)),
+        failure_reasons={k: int(sum(r["reason"] == k for r in rows)) for k in sorted({r["reason"] for r in rows if r["reason"]})},
+        budget_ms=1e3 * budget_s,
+    )
+    if not args.no_reference:
+        ref_ms = np.array([r["ref_ms"] for r in rows])
+        ref_ok = np.array([r["ref_success"] for r in rows])
+        both = ok & ref_ok
+        metrics.update(
+            reference="OMPL RRTConnect + Drake SceneGraph point-pair check (holonomic base, no simplification)",
+            reference_success_rate=float(ref_ok.mean()),
+            reference_median_ms=float(np.median(ref_ms)),
+            speedup_vs_reference=float(np.median(ref_ms) / np.median(ms)),
+            speedup_on_both_solved=float(np.median(ref_ms[both]) / np.median(ms[both])) if both.any() else None,
+        )
+    print(json.dumps(metrics))
+
+
+if __name__ == "__main__":
+    main()
