@@ -1,0 +1,168 @@
+"""The real subgoal samplers (kinematic maps, IK, collision, visibility) in constructed scenes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vamg_drake.policy import synthetic_clouds as clouds
+from vamg_drake.policy.behaviour_tree import FailureCategory, MotionEvent, Phase, PolicyInputs, SubgoalBehaviour
+from vamg_drake.policy.kinematic_maps import KinematicMaps
+from vamg_drake.policy.pregrasp_sampler import BaseCostmap, CostmapConfig
+from vamg_drake.policy.subgoal_pipeline import SubgoalPipeline
+from vamg_drake.robot import layout
+from vamg_drake.robot.head_camera import CameraIntrinsics, HeadCameraConfig
+from vamg_drake.robot.kinematics import FetchKinematics
+
+
+@pytest.fixture(scope="module")
+def pipeline() -> SubgoalPipeline:
+    return SubgoalPipeline(KinematicMaps.load_or_build(), seed=0)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return clouds.tabletop_scene()
+
+
+def test_costmap_follows_the_appendix_recipe() -> None:
+    cfg = CostmapConfig()
+    zs = [0.1, 0.5, 1.0]
+    room = clouds.box_surface_cloud([0.0, 0.0, 0.1], [2.0, 2.0, 1.0], spacing=0.05)
+    room = room[np.isclose(room[:, 0], 0) | np.isclose(room[:, 0], 2) | np.isclose(room[:, 1], 0) | np.isclose(room[:, 1], 2)]
+    divider = np.stack(np.meshgrid(np.arange(0.0, 2.0, 0.05), [0.7], zs, indexing="ij"), -1).reshape(-1, 3)
+    divider = divider[np.abs(divider[:, 0] - 1.0) > 0.03]  # a one-cell gap at x = 1.0 ...
+    clutter = np.array([[0.5, 1.3, 0.02], [0.5, 1.4, 1.8]])  # ... and points outside 0.05-1.5 m
+    points = np.concatenate([room, divider, clutter])
+    cm = BaseCostmap.from_points(points, cfg)
+    cell, _ = cm.cell_of(np.array([[1.0, 0.7], [0.5, 1.3], [0.5, 1.4]]))
+    assert cm.occupied[cell[0, 0], cell[0, 1]]  # the 3x3 closing filled the gap
+    assert not cm.occupied[cell[1, 0], cell[1, 1]] and not cm.occupied[cell[2, 0], cell[2, 1]]
+    # EDT distances and the exponential cost.
+    assert cm.clearance_at(np.array([[1.0, 1.35]]))[0] == pytest.approx(0.65, abs=0.051)
+    np.testing.assert_allclose(cm.cost, np.exp(-cm.distance / 2.0))
+    # The largest free component (the padded outside ring here) ...
+    np.testing.assert_array_equal(cm.navigable_at(np.array([[1.0, -0.3], [1.0, 0.3], [1.0, 1.5]])), [True, False, False])
+    # ... unless the robot stands in a free cell: then its own component.
+    cm = BaseCostmap.from_points(points, cfg, robot_xy=np.array([1.0, 1.5]))
+    np.testing.assert_array_equal(cm.navigable_at(np.array([[1.0, -0.3], [1.0, 0.3], [1.0, 1.5]])), [False, False, True])
+    # Samples: navigable, clear, within the radius, facing the target, biased to low cost.
+    target = np.array([1.0, 1.2, 0.8])
+    rng = np.random.default_rng(0)
+    bases = cm.sample_bases(target, 2000, (0.2, 0.8), 0.15, rng)
+    assert bases.shape == (2000, 3)
+    assert np.all(cm.clearance_at(bases[:, :2]) >= 0.1)
+    r = np.linalg.norm(bases[:, :2] - target[:2], axis=1)
+    assert np.all((r > 0.15) & (r < 0.85))
+    heading = np.stack([np.cos(bases[:, 2]), np.sin(bases[:, 2])], 1)
+    to_target = (target[:2] - bases[:, :2]) / r[:, None]
+    np.testing.assert_allclose(np.sum(heading * to_target, 1), 1.0, atol=1e-9)
+    centers = cm.cell_centers()
+    rr = np.linalg.norm(centers - target[:2], axis=-1)
+    eligible = cm.navigable & (cm.distance >= 0.15) & (rr >= 0.2) & (rr <= 0.8)
+    w_cells = ((1 - cm.cost[eligible]) ** 2).mean()
+    w_samples = ((1 - np.exp(-cm.clearance_at(bases[:, :2]) / 2.0)) ** 2).mean()
+    assert w_samples > w_cells
+
+
+def test_pregrasp_samples_are_collision_free_ik_valid_and_see_the_target(pipeline, scene) -> None:
+    points, target = scene
+    q0 = layout.stow_configuration(-1.5, 0.5, 0.0)
+    is_free = pipeline.collision_fn(points, target, q0)
+    kin = FetchKinematics.instance()
+    intr = CameraIntrinsics.from_config(HeadCameraConfig())
+    n_ok = 0
+    for seed in range(4):
+        r = pipeline.pregrasp.sample(points, target, q0, is_free, np.random.default_rng(seed))
+        if not r.success:
+            continue
+        n_ok += 1
+        q = r.q
+        assert layout.within_limits(q)
+        assert is_free(q[None])[0]
+        X = kin.gripper_pose(q)
+        np.testing.assert_allclose(X[:3, 3], r.X_WG[:3, 3], atol=pipeline.ik.config.position_tolerance)
+        assert np.linalg.norm(X[:3, 3] - target) == pytest.approx(0.10, abs=0.005)
+        approach = (target - X[:3, 3]) / np.linalg.norm(target - X[:3, 3])
+        assert X[:3, 0] @ approach > 0.99
+        # The target is in the image, in front of the camera, at the aimed head.
+        X_WC = kin.camera_pose(q, *r.head)
+        p_C = np.linalg.inv(X_WC) @ np.r_[target, 1.0]
+        u = intr.fx * p_C[0] / p_C[2] + intr.cx
+        v = intr.fy * p_C[1] / p_C[2] + intr.cy
+        assert p_C[2] > 0.2 and 0 <= u < intr.width and 0 <= v < intr.height
+        # No robot sphere on the line of sight.
+        visible, _ = pipeline.visibility.check(q[None], target)
+        assert visible[0]
+    assert n_ok >= 3
+
+
+def test_tree_falls_back_and_recovers_in_a_scene(pipeline, scene) -> None:
+    points, target = scene
+    bt = SubgoalBehaviour(pipeline.samplers())
+    q = layout.stow_configuration(-1.5, 0.5, 0.0)  # 2.5 m from the target: no grasp in place
+    cmd = bt.step(PolicyInputs(0.0, q, points, target))
+    assert cmd.phase == Phase.PREGRASP, bt.tree_status()
+    assert "grasp" in bt.stage_failures
+    # Drive to the pre-grasp: from there the grasp stage succeeds.
+    cmd = bt.step(PolicyInputs(5.0, cmd.q_goal, points, target), MotionEvent.REACHED)
+    assert cmd.phase == Phase.GRASP_MOVE, bt.tree_status()
+    X_pre = FetchKinematics.instance().gripper_pose(cmd.q_goal)
+    assert np.linalg.norm(X_pre[:3, 3] - target) < 0.2
+    np.testing.assert_allclose(cmd.q_goal[:4], bt.q_grasp[:4])  # base and torso fixed while grasping
+    # An injected motion failure: the grasp is blocked at this base, back to pre-grasp.
+    base = cmd.q_goal
+    cmd = bt.step(PolicyInputs(6.0, base, points, target), MotionEvent.FAILED)
+    assert cmd.phase == Phase.PREGRASP and bt.motion_failures["grasp"] == 1
+
+
+def test_tree_falls_back_to_observe_when_the_target_is_out_of_reach(pipeline) -> None:
+    # A can in the middle of a 2 m deep table: visible from afar, out of the arm's reach.
+    table = clouds.box_surface_cloud([0.5, -1.0, 0.0], [2.5, 1.0, 0.6])
+    can = clouds.can_cloud(center=(1.5, 0.0, 0.6), seed=3)
+    points = np.concatenate([clouds.room_walls_cloud(), table, can])
+    target = np.array([1.5, 0.0, 0.66])
+    bt = SubgoalBehaviour(pipeline.samplers())
+    cmd = bt.step(PolicyInputs(0.0, layout.stow_configuration(-1.0, 0.0, 0.0), points, target))
+    assert cmd.phase == Phase.OBSERVE, bt.tree_status()
+    d = np.linalg.norm(cmd.q_goal[:2] - target[:2])
+    assert min(pipeline.config.observe.standoff) - 0.01 <= d <= max(pipeline.config.observe.standoff) + 0.01
+    np.testing.assert_allclose(cmd.q_goal[layout.ARM], layout.Q_ARM_STOW)
+
+
+def test_target_outside_the_room_fails_with_reachability(pipeline, scene) -> None:
+    points, _ = scene
+    target = np.array([4.5, 0.0, 0.8])  # beyond the wall at x = 3
+    bt = SubgoalBehaviour(pipeline.samplers())
+    cmd = bt.step(PolicyInputs(0.0, layout.stow_configuration(0.0, 0.0, 0.0), points, target))
+    assert cmd.phase == Phase.FAILED
+    assert cmd.failure in (FailureCategory.REACHABILITY, FailureCategory.PERCEPTION, FailureCategory.SUBGOAL)
+    assert "navigable" in bt.stage_failures["pregrasp"][0]
+
+
+def test_target_inside_furniture_fails_with_perception(pipeline) -> None:
+    cabinet = clouds.box_surface_cloud([1.0, -0.4, 0.0], [1.6, 0.4, 0.9], spacing=0.02)
+    points = np.concatenate([clouds.room_walls_cloud(), cabinet])
+    target = np.array([1.3, 0.0, 0.45])  # the cabinet's solid inside
+    bt = SubgoalBehaviour(pipeline.samplers())
+    cmd = bt.step(PolicyInputs(0.0, layout.stow_configuration(-1.0, 0.0, 0.0), points, target))
+    assert cmd.phase == Phase.FAILED and cmd.failure == FailureCategory.PERCEPTION
+    assert "enclosed" in cmd.reason
+
+
+def test_empty_cloud_around_the_target(pipeline) -> None:
+    points = clouds.room_walls_cloud()  # nothing observed near the target yet
+    target = np.array([1.0, 0.0, 0.8])
+    proposal = pipeline.sample_grasp(PolicyInputs(0.0, layout.stow_configuration(0.5, 0.0, 0.0), points, target))
+    assert not proposal.success and proposal.category == FailureCategory.PERCEPTION
+    assert "too few observed points" in proposal.failure_reason
+    # An empty map altogether is not an error either.
+    proposal = pipeline.sample_grasp(PolicyInputs(0.0, layout.stow_configuration(0.5, 0.0, 0.0), np.zeros((0, 3)), target))
+    assert not proposal.success and "too few" in proposal.failure_reason
+
+
+def test_non_finite_target(pipeline, scene) -> None:
+    points, _ = scene
+    for sample in (pipeline.sample_grasp, pipeline.sample_pregrasp, pipeline.sample_observe):
+        p = sample(PolicyInputs(0.0, layout.stow_configuration(0, 0, 0), points, np.array([np.nan, 0.0, 1.0])))
+        assert not p.success and "finite" in p.failure_reason

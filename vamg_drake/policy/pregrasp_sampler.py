@@ -1,0 +1,360 @@
+"""Pre-grasp configuration sampling (paper appendix "Pre-Grasp Configuration Sampling").
+
+Three proposal distributions and three constraint checks, by rejection:
+
+* ``p_geo`` -- base poses from a 2D costmap of the map points (`BaseCostmap`,
+  exactly the appendix's recipe: height filter 0.05-1.5 m, XY projection,
+  0.05 m cells, 3x3 binary closing, largest free connected component,
+  Euclidean distance transform, ``c = exp(-d / 2.0)``, sample proportional to
+  ``(1 - c)^2`` among cells within manipulation radius of the target), the
+  yaw facing the target;
+* ``p_torso`` -- the torso height map's best height for the target's position
+  in the sampled base frame;
+* ``p_ee`` -- pre-grasp end-effector poses on the 10 cm sphere around the
+  target, approach (+x of G) pointing at the target, random roll about the
+  approach, filtered by the capability map;
+
+then arm-only IK (base and torso fixed, `FastIk`), collision (an ``is_free``
+callable, e.g. `CollisionChecker.is_free`) and self-occlusion of the target
+from the head camera (`TargetVisibility`). Bases are visited one at a time
+(``samples_per_base`` end-effector samples each, as one batch) and the first
+valid configuration is returned, as in the paper's Algorithm.
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import time
+from typing import Callable
+
+import numpy as np
+from scipy import ndimage
+
+from vamg_drake.policy.arm_chain import base_poses
+from vamg_drake.policy.ik import FastIk
+from vamg_drake.policy.kinematic_maps import KinematicMaps
+from vamg_drake.policy.visibility import TargetVisibility
+from vamg_drake.robot import layout
+
+IsFreeFn = Callable[[np.ndarray], np.ndarray]
+
+
+@dc.dataclass
+class CostmapConfig:
+    """The 2D base costmap of ``p_geo`` (paper values)."""
+
+    z_min: float = 0.05
+    z_max: float = 1.5
+    resolution: float = 0.05
+    #: d_max of c = exp(-d / d_max) [m].
+    decay_distance: float = 2.0
+    #: Binary closing kernel (cells).
+    closing_size: int = 3
+    #: Margin added around the points' extent [m].
+    padding: float = 0.5
+    #: Smallest obstacle distance of a base cell [m] (the base footprint radius plus margin).
+    base_clearance: float = 0.35
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.z_min < self.z_max:
+            raise ValueError(f"CostmapConfig: need 0 <= z_min < z_max, got {self.z_min}, {self.z_max}")
+        if self.resolution <= 0 or self.decay_distance <= 0:
+            raise ValueError("CostmapConfig: resolution and decay_distance must be > 0")
+
+
+@dc.dataclass(frozen=True)
+class BaseCostmap:
+    """A 2D costmap on a grid; cell (i, j) centre = origin + (i, j) * resolution.
+
+    Attributes:
+        occupied: (nx, ny) obstacle cells after closing.
+        navigable: (nx, ny) the largest free connected component.
+        distance: (nx, ny) distance to the nearest obstacle cell [m].
+        cost: (nx, ny) exp(-distance / decay_distance).
+    """
+
+    occupied: np.ndarray
+    navigable: np.ndarray
+    distance: np.ndarray
+    cost: np.ndarray
+    origin: np.ndarray
+    resolution: float
+
+    @staticmethod
+    def from_points(
+        p_WM: np.ndarray,
+        config: CostmapConfig,
+        include_xy: np.ndarray | None = None,
+        robot_xy: np.ndarray | None = None,
+    ) -> "BaseCostmap":
+        """Builds the costmap from world points (N, 3).
+
+        Args:
+            p_WM: map points.
+            config: costmap parameters.
+            include_xy: (K, 2) positions the grid must cover (robot, target).
+            robot_xy: the robot's position. The navigable region is the paper's
+                largest free component, except that when the robot stands in a
+                free cell its own component is used: seen from inside a room,
+                the unexplored outside can be the larger one.
+        """
+        cfg = config
+        p = np.asarray(p_WM, dtype=float).reshape(-1, 3)
+        p = p[np.all(np.isfinite(p), axis=1)]
+        p = p[(p[:, 2] >= cfg.z_min) & (p[:, 2] <= cfg.z_max)]  # (1) height filter
+        xy = p[:, :2]  # (2) projection
+        extent = [xy] + ([np.reshape(include_xy, (-1, 2))] if include_xy is not None else [])
+        extent = np.concatenate(extent) if sum(e.shape[0] for e in extent) else np.zeros((1, 2))
+        lo = extent.min(axis=0) - cfg.padding
+        hi = extent.max(axis=0) + cfg.padding
+        shape = np.ceil((hi - lo) / cfg.resolution).astype(int) + 1
+        occupied = np.zeros(shape, dtype=bool)  # (3) rasterize
+        idx = np.round((xy - lo) / cfg.resolution).astype(int)
+        occupied[idx[:, 0], idx[:, 1]] = True
+        if cfg.closing_size > 1:  # (4) closing
+            occupied = ndimage.binary_closing(
+                occupied, structure=np.ones((cfg.closing_size, cfg.closing_size), bool), border_value=0
+            )
+        labels, n = ndimage.label(~occupied)  # (5) largest free component
+        own = 0
+        if robot_xy is not None:
+            r = np.round((np.asarray(robot_xy, float)[:2] - lo) / cfg.resolution).astype(int)
+            if np.all((r >= 0) & (r < shape)):
+                own = int(labels[r[0], r[1]])
+        if n == 0:
+            navigable = np.zeros_like(occupied)
+        elif own > 0:
+            navigable = labels == own
+        else:
+            sizes = np.bincount(labels.ravel())
+            sizes[0] = 0
+            navigable = labels == int(np.argmax(sizes))
+        if occupied.any():  # (6) EDT from obstacle cells
+            distance = ndimage.distance_transform_edt(~occupied) * cfg.resolution
+        else:
+            distance = np.full(shape, np.inf)
+        cost = np.exp(-distance / cfg.decay_distance)  # (7) exponential decay
+        return BaseCostmap(occupied, navigable, distance, cost, lo, cfg.resolution)
+
+    def cell_centers(self) -> np.ndarray:
+        """(nx, ny, 2) world XY of every cell centre."""
+        i, j = np.meshgrid(np.arange(self.cost.shape[0]), np.arange(self.cost.shape[1]), indexing="ij")
+        return self.origin + np.stack([i, j], -1) * self.resolution
+
+    def cell_of(self, p_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Integer cell indices (K, 2) of XY points and whether they are on the grid."""
+        idx = np.round((np.reshape(p_xy, (-1, 2)) - self.origin) / self.resolution).astype(int)
+        inside = np.all((idx >= 0) & (idx < np.array(self.cost.shape)), axis=1)
+        return np.where(inside[:, None], idx, 0), inside
+
+    def clearance_at(self, p_xy: np.ndarray) -> np.ndarray:
+        """Distance to the nearest obstacle cell at XY points (0 off the grid)."""
+        idx, inside = self.cell_of(p_xy)
+        return np.where(inside, self.distance[idx[:, 0], idx[:, 1]], 0.0)
+
+    def navigable_at(self, p_xy: np.ndarray) -> np.ndarray:
+        idx, inside = self.cell_of(p_xy)
+        return inside & self.navigable[idx[:, 0], idx[:, 1]]
+
+    def sample_bases(
+        self,
+        p_WT: np.ndarray,
+        n: int,
+        radius: tuple[float, float],
+        min_clearance: float,
+        rng: np.random.Generator,
+    ) -> np.ndarray:
+        """``p_geo``: n base poses (n, 3) [x, y, yaw facing the target] (fewer if none fit).
+
+        Cells must be navigable, at least ``min_clearance`` from obstacles and at a
+        horizontal distance in ``radius`` from the target; they are drawn with
+        probability proportional to (1 - c)^2, with a uniform jitter inside the cell.
+        """
+        centers = self.cell_centers()
+        r = np.linalg.norm(centers - np.asarray(p_WT, float)[:2], axis=-1)
+        ok = self.navigable & (self.distance >= min_clearance) & (r >= radius[0]) & (r <= radius[1])
+        weights = np.where(ok, (1.0 - self.cost) ** 2, 0.0).ravel()
+        total = weights.sum()
+        if not total > 0:
+            return np.zeros((0, 3))
+        pick = rng.choice(weights.size, size=n, p=weights / total)
+        xy = centers.reshape(-1, 2)[pick] + rng.uniform(-0.5, 0.5, (n, 2)) * self.resolution
+        yaw = np.arctan2(p_WT[1] - xy[:, 1], p_WT[0] - xy[:, 0])
+        return np.concatenate([xy, yaw[:, None]], axis=1)
+
+
+@dc.dataclass
+class PregraspConfig:
+    """Parameters of the pre-grasp sampler (paper: 20 bases x 128 arm/torso samples)."""
+
+    costmap: CostmapConfig = dc.field(default_factory=CostmapConfig)
+    num_bases: int = 20
+    samples_per_base: int = 128
+    #: Radius of the end-effector sphere around the target [m] (paper: 0.10).
+    ee_radius: float = 0.10
+    #: Horizontal distance of base samples from the target [m] (the arm's reach).
+    base_radius: tuple[float, float] = (0.35, 1.05)
+    #: Use the capability map to filter end-effector samples.
+    use_capability: bool = True
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.num_bases < 1 or self.samples_per_base < 1:
+            raise ValueError("PregraspConfig: num_bases and samples_per_base must be >= 1")
+        if not 0 <= self.base_radius[0] < self.base_radius[1]:
+            raise ValueError(f"PregraspConfig.base_radius must be (min, max) with min < max, got {self.base_radius}")
+
+
+@dc.dataclass(frozen=True)
+class PregraspResult:
+    """Outcome of one pre-grasp sampling call.
+
+    Attributes:
+        success: a valid configuration was found.
+        q: (11,) the pre-grasp configuration (NaN on failure).
+        X_WG: (4, 4) its end-effector pose (NaN on failure).
+        head: (2,) pan/tilt that looks at the target from q (NaN on failure).
+        num_samples: end-effector samples drawn (incl. the returned one's batch).
+        funnel: counts passing each stage (capability, ik, collision, visibility).
+        elapsed_s: wall time.
+        failure_reason: empty on success.
+    """
+
+    success: bool
+    q: np.ndarray
+    X_WG: np.ndarray
+    head: np.ndarray
+    num_samples: int
+    funnel: dict
+    elapsed_s: float
+    failure_reason: str = ""
+
+
+def sample_approach_poses(p_WT: np.ndarray, radius: float, n: int, rng: np.random.Generator) -> np.ndarray:
+    """``p_ee``: n poses X_WG on the sphere of ``radius`` around the target, +x pointing at it,
+    a uniformly random roll about the approach."""
+    u = rng.normal(size=(n, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    x_axis = -u
+    helper = np.where(np.abs(x_axis[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
+    a = np.cross(x_axis, helper)
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    b = np.cross(x_axis, a)
+    roll = rng.uniform(0, 2 * np.pi, n)
+    y_axis = np.cos(roll)[:, None] * a + np.sin(roll)[:, None] * b
+    X = np.zeros((n, 4, 4))
+    X[:, :3, 0] = x_axis
+    X[:, :3, 1] = y_axis
+    X[:, :3, 2] = np.cross(x_axis, y_axis)
+    X[:, :3, 3] = np.asarray(p_WT, float) + radius * u
+    X[:, 3, 3] = 1.0
+    return X
+
+
+class PregraspSampler:
+    """Rejection sampler of whole-body pre-grasp configurations."""
+
+    def __init__(
+        self,
+        maps: KinematicMaps,
+        ik: FastIk | None = None,
+        visibility: TargetVisibility | None = None,
+        config: PregraspConfig | None = None,
+    ) -> None:
+        self.maps = maps
+        self.ik = ik or FastIk()
+        self.visibility = visibility or TargetVisibility()
+        self.config = config or PregraspConfig()
+
+    def sample(
+        self,
+        p_WM: np.ndarray,
+        p_WT: np.ndarray,
+        q_current: np.ndarray,
+        is_free: IsFreeFn,
+        rng: np.random.Generator | None = None,
+        max_samples: int | None = None,
+        costmap: BaseCostmap | None = None,
+    ) -> PregraspResult:
+        """Samples a pre-grasp configuration for target ``p_WT`` under map points ``p_WM``.
+
+        Args:
+            p_WM: (N, 3) map points.
+            p_WT: (3,) target.
+            q_current: (11,) current configuration (the arm seed for IK).
+            is_free: batched collision check of configurations (K, 11) -> (K,).
+            rng: random generator (seeded from the config when None).
+            max_samples: end-effector sample budget (default num_bases x samples_per_base).
+            costmap: a prebuilt costmap (built from p_WM when None).
+        """
+        t0 = time.perf_counter()
+        cfg = self.config
+        rng = rng if rng is not None else np.random.default_rng(cfg.seed)
+        p_WT = np.asarray(p_WT, dtype=float).reshape(3)
+        q_current = np.asarray(q_current, dtype=float).reshape(layout.NQ)
+        budget = max_samples if max_samples is not None else cfg.num_bases * cfg.samples_per_base
+        funnel = {"bases": 0, "samples": 0, "capability": 0, "ik": 0, "collision": 0, "visible": 0}
+        nan_q = np.full(layout.NQ, np.nan)
+
+        def fail(reason: str) -> PregraspResult:
+            return PregraspResult(False, nan_q, np.full((4, 4), np.nan), np.full(2, np.nan),
+                                  funnel["samples"], funnel, time.perf_counter() - t0, reason)
+
+        if not np.all(np.isfinite(p_WT)):
+            return fail(f"target is not finite: {p_WT}")
+        if costmap is None:
+            costmap = BaseCostmap.from_points(
+                p_WM, cfg.costmap, include_xy=np.stack([p_WT[:2], q_current[:2]]), robot_xy=q_current[:2]
+            )
+        n_bases = int(np.ceil(budget / cfg.samples_per_base))
+        bases = costmap.sample_bases(p_WT, n_bases, cfg.base_radius, cfg.costmap.base_clearance, rng)
+        if bases.shape[0] == 0:
+            return fail("no navigable base cell within manipulation radius of the target (costmap)")
+        seed_arm = q_current[layout.ARM]
+        for base in bases:
+            n = min(cfg.samples_per_base, budget - funnel["samples"])
+            if n <= 0:
+                break
+            funnel["bases"] += 1
+            funnel["samples"] += n
+            q_base = np.concatenate([base, [0.0], seed_arm])
+            X_WB = base_poses(q_base)[0]
+            X_BW = np.linalg.inv(X_WB)
+            p_BT = X_BW[:3, :3] @ p_WT + X_BW[:3, 3]
+            X_WG = sample_approach_poses(p_WT, cfg.ee_radius, n, rng)
+            X_BG = X_BW[None] @ X_WG
+            keep = np.ones(n, dtype=bool)
+            if cfg.use_capability:
+                keep = self.maps.capability.is_reachable(X_BG)
+            funnel["capability"] += int(keep.sum())
+            if not keep.any():
+                continue
+            # p_torso: the best torso for the target (per sample: its own EE bin when the target's is empty).
+            h = self.maps.torso_height.best_torso(p_BT[None])[0]
+            torso = np.full(n, h) if np.isfinite(h) else self.maps.torso_height.best_torso(X_BG[:, :3, 3])
+            missing = ~np.isfinite(torso)
+            torso[missing] = rng.uniform(layout.Q_LOWER[layout.TORSO], layout.Q_UPPER[layout.TORSO], missing.sum())
+            seeds = np.tile(q_base, (n, 1))
+            seeds[:, layout.TORSO] = torso
+            idx = np.flatnonzero(keep)
+            q, ok = self.ik.solve(X_WG[idx], seeds[idx], torso_fixed=True)
+            funnel["ik"] += int(ok.sum())
+            if not ok.any():
+                continue
+            idx, q = idx[ok], q[ok]
+            free = np.asarray(is_free(q), dtype=bool)
+            funnel["collision"] += int(free.sum())
+            if not free.any():
+                continue
+            idx, q = idx[free], q[free]
+            visible, head = self.visibility.check(q, p_WT)
+            funnel["visible"] += int(visible.sum())
+            if visible.any():
+                i = int(np.flatnonzero(visible)[0])
+                return PregraspResult(True, q[i], X_WG[idx[i]], head[i], funnel["samples"], funnel,
+                                      time.perf_counter() - t0)
+        return fail(
+            f"no valid pre-grasp in {funnel['samples']} samples "
+            f"(capability {funnel['capability']}, IK {funnel['ik']}, collision-free {funnel['collision']}, "
+            f"visible {funnel['visible']})"
+        )

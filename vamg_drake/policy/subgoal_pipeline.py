@@ -1,0 +1,204 @@
+"""The real subgoal samplers: grasp, pre-grasp and observe, wired to maps, IK and collision.
+
+`SubgoalPipeline` owns the kinematic maps, the IK, a `GraspCandidateSource`
+(the geometric `AntipodalGraspSampler` by default; a learned network plugs in
+here), the pre-grasp and observe samplers, and builds the collision check from
+the map points at each call. `SubgoalPipeline.samplers()` returns the
+`SubgoalSamplers` the behaviour tree calls.
+
+Collision checks use the planner's `CollisionChecker` with two environments:
+the robot body (every sphere but the gripper's) against all map points near
+the target, and the gripper spheres against the map points outside a small
+ball around the target -- the fingers are meant to reach the object, and the
+grasp sampler has already checked the fingers and palm against the cloud
+itself at finer resolution.
+
+Target checks (bad input): a non-finite target, or one enclosed by map points
+on (nearly) all sides -- inside furniture -- fails every stage at once with a
+clear reason; a target outside the room fails because no navigable base cell
+lies within the arm's reach of it.
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from vamg_drake.planning.collision import CollisionChecker, CollisionCheckerConfig, CollisionEnvironment
+from vamg_drake.policy.arm_chain import base_poses
+from vamg_drake.policy.behaviour_tree import FailureCategory, PolicyInputs, SubgoalProposal, SubgoalSamplers
+from vamg_drake.policy.grasp_candidates import AntipodalGraspSampler, GraspCandidateSource
+from vamg_drake.policy.grasp_ranking import GraspRankingConfig, select_grasp_goal
+from vamg_drake.policy.ik import FastIk
+from vamg_drake.policy.kinematic_maps import KinematicMaps
+from vamg_drake.policy.observe_sampler import ObserveConfig, ObserveSampler
+from vamg_drake.policy.pregrasp_sampler import BaseCostmap, PregraspConfig, PregraspSampler
+from vamg_drake.policy.visibility import TargetVisibility
+from vamg_drake.robot.kinematics import FetchKinematics
+from vamg_drake.robot.spheres import SphereModel
+
+
+@dc.dataclass
+class SubgoalPipelineConfig:
+    """Parameters of the real samplers."""
+
+    ranking: GraspRankingConfig = dc.field(default_factory=GraspRankingConfig)
+    pregrasp: PregraspConfig = dc.field(default_factory=PregraspConfig)
+    observe: ObserveConfig = dc.field(default_factory=ObserveConfig)
+    #: Distance field resolution of the collision environment [m].
+    collision_resolution: float = 0.02
+    #: Map points within this horizontal distance of the target (or the robot) are obstacles [m].
+    collision_crop: float = 2.2
+    #: The gripper ignores map points this close to the target [m].
+    target_clearance: float = 0.10
+    #: Map points around the target given to the grasp candidate source [m].
+    grasp_cloud_radius: float = 0.30
+    #: Enclosure test: rays from the target, blocked by a point within
+    #: ``enclosure_ray_radius`` of the ray between ``enclosure_min_distance``
+    #: (beyond the target object's own surface) and ``enclosure_range``.
+    enclosure_min_distance: float = 0.08
+    enclosure_range: float = 0.8
+    enclosure_ray_radius: float = 0.03
+    #: The target is "inside furniture" when at least this fraction of the 26 rays is blocked.
+    enclosure_fraction: float = 0.95
+
+
+class SubgoalPipeline:
+    """Grasp / pre-grasp / observe samplers over the real components."""
+
+    def __init__(
+        self,
+        maps: KinematicMaps,
+        grasp_source: GraspCandidateSource | None = None,
+        config: SubgoalPipelineConfig | None = None,
+        seed: int = 0,
+    ) -> None:
+        self.config = config or SubgoalPipelineConfig()
+        self.maps = maps
+        self.grasp_source = grasp_source or AntipodalGraspSampler()
+        self.ik = FastIk()
+        self.visibility = TargetVisibility()
+        self.pregrasp = PregraspSampler(maps, self.ik, self.visibility, self.config.pregrasp)
+        self.observe = ObserveSampler(self.visibility, self.config.observe)
+        self.spheres = SphereModel.load()
+        self.rng = np.random.default_rng(seed)
+        self._cache_key: tuple | None = None
+        self._cache: tuple | None = None
+
+    def samplers(self) -> SubgoalSamplers:
+        return SubgoalSamplers(self.sample_grasp, self.sample_pregrasp, self.sample_observe)
+
+    # -- shared pieces ------------------------------------------------------
+
+    def target_problem(self, p_WM: np.ndarray, p_WT: np.ndarray) -> str:
+        """A reason when the target is unusable (non-finite, enclosed by the map), else ''."""
+        p_WT = np.asarray(p_WT, dtype=float).reshape(-1)
+        if p_WT.shape != (3,) or not np.all(np.isfinite(p_WT)):
+            return f"target must be a finite 3-vector, got {p_WT}"
+        cfg = self.config
+        dist = np.linalg.norm(p_WM - p_WT, axis=1)
+        near = p_WM[(dist <= cfg.enclosure_range) & (dist >= cfg.enclosure_min_distance)]
+        if near.shape[0] < 26:
+            return ""
+        d = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij"), -1).reshape(-1, 3)
+        d = d[np.any(d != 0, axis=1)].astype(float)
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        rel = near - p_WT
+        t = rel @ d.T  # (N, 26)
+        perp = np.linalg.norm(rel[:, None, :] - t[..., None] * d[None], axis=2)
+        blocked = np.any((t > 0.0) & (perp <= cfg.enclosure_ray_radius), axis=0)
+        if blocked.mean() >= cfg.enclosure_fraction:
+            return (f"target {np.round(p_WT, 3).tolist()} is enclosed by map points on {int(blocked.sum())}/26 "
+                    f"sides within {cfg.enclosure_range} m (inside furniture?)")
+        return ""
+
+    def collision_fn(self, p_WM: np.ndarray, p_WT: np.ndarray, q: np.ndarray):
+        """Batched ``is_free`` for configurations near the target under map points p_WM."""
+        cfg = self.config
+        key = (p_WM.shape[0], float(p_WM.sum()) if p_WM.size else 0.0, tuple(np.round(p_WT, 4)),
+               tuple(np.round(np.asarray(q)[:2], 1)))
+        if self._cache_key == key:
+            return self._cache
+        centers = np.stack([p_WT[:2], np.asarray(q, float)[:2]])
+        dxy = np.min(np.linalg.norm(p_WM[:, None, :2] - centers[None], axis=2), axis=1) if p_WM.size else np.zeros(0)
+        local = p_WM[dxy <= cfg.collision_crop]
+        if local.shape[0] == 0:
+            local = np.array([[1e3, 1e3, 1e3]])  # an empty room: one far point
+        body = CollisionChecker.for_fetch(CollisionEnvironment.from_points(local, cfg.collision_resolution),
+                                          CollisionCheckerConfig())
+        body.check_env = ~self.spheres.is_gripper
+        away = local[np.linalg.norm(local - p_WT, axis=1) > cfg.target_clearance]
+        if away.shape[0] == 0:
+            away = np.array([[1e3, 1e3, 1e3]])
+        gripper = CollisionChecker.for_fetch(CollisionEnvironment.from_points(away, cfg.collision_resolution),
+                                             CollisionCheckerConfig())
+        gripper.check_env = self.spheres.is_gripper.copy()
+
+        def is_free(Q: np.ndarray) -> np.ndarray:
+            Q = np.atleast_2d(Q)
+            free = body.is_free(Q)
+            if free.any():
+                free[free] = gripper.is_free(Q[free])
+            return free
+
+        self._cache_key, self._cache = key, is_free
+        return is_free
+
+    @staticmethod
+    def _points(inputs: PolicyInputs) -> np.ndarray:
+        p = np.asarray(inputs.p_WM, dtype=float).reshape(-1, 3)
+        return p[np.all(np.isfinite(p), axis=1)]
+
+    # -- the samplers ----------------------------------------------------------
+
+    def sample_grasp(self, inputs: PolicyInputs) -> SubgoalProposal:
+        """Grasp goal with the base and torso fixed (paper Algorithm 1)."""
+        p_WM, q = self._points(inputs), np.asarray(inputs.q, float)
+        p_WT = np.asarray(inputs.p_WT, float)
+        problem = self.target_problem(p_WM, p_WT)
+        if problem:
+            return SubgoalProposal.failure(problem, FailureCategory.PERCEPTION)
+        cloud = p_WM[np.linalg.norm(p_WM - p_WT, axis=1) <= self.config.grasp_cloud_radius]
+        candidates = self.grasp_source.propose(cloud, p_WT, self.rng)
+        if len(candidates) == 0:
+            return SubgoalProposal.failure(f"no grasp candidates: {candidates.failure_reason}", FailureCategory.PERCEPTION)
+        X_WB = base_poses(q)[0]
+        p_WE = FetchKinematics.instance().gripper_pose(q)[:3, 3]
+        goal = select_grasp_goal(
+            candidates, q, X_WB, p_WE, self.ik.solve_arm, self.collision_fn(p_WM, p_WT, q),
+            self.maps.capability.is_reachable, self.config.ranking,
+        )
+        if not goal.success:
+            category = FailureCategory.SUBGOAL if "collision" in goal.failure_reason else FailureCategory.REACHABILITY
+            return SubgoalProposal.failure(goal.failure_reason, category)
+        _, head = self.visibility.check(goal.q_pregrasp[None], p_WT)
+        return SubgoalProposal(True, goal.q_pregrasp, goal.q_grasp, head[0])
+
+    def sample_pregrasp(self, inputs: PolicyInputs) -> SubgoalProposal:
+        """Whole-body pre-grasp configuration (paper Algorithm 3)."""
+        p_WM, q = self._points(inputs), np.asarray(inputs.q, float)
+        p_WT = np.asarray(inputs.p_WT, float)
+        problem = self.target_problem(p_WM, p_WT)
+        if problem:
+            return SubgoalProposal.failure(problem, FailureCategory.PERCEPTION)
+        costmap = BaseCostmap.from_points(p_WM, self.config.pregrasp.costmap,
+                                          include_xy=np.stack([p_WT[:2], q[:2]]), robot_xy=q[:2])
+        result = self.pregrasp.sample(p_WM, p_WT, q, self.collision_fn(p_WM, p_WT, q), self.rng, costmap=costmap)
+        if not result.success:
+            category = FailureCategory.REACHABILITY if result.funnel["ik"] == 0 else FailureCategory.SUBGOAL
+            return SubgoalProposal.failure(result.failure_reason, category)
+        return SubgoalProposal(True, result.q, head=result.head)
+
+    def sample_observe(self, inputs: PolicyInputs) -> SubgoalProposal:
+        """A base pose at a standoff that sees the target, arm stowed."""
+        p_WM, q = self._points(inputs), np.asarray(inputs.q, float)
+        p_WT = np.asarray(inputs.p_WT, float)
+        problem = self.target_problem(p_WM, p_WT)
+        if problem:
+            return SubgoalProposal.failure(problem, FailureCategory.PERCEPTION)
+        result = self.observe.sample(p_WM, p_WT, q, self.collision_fn(p_WM, p_WT, q), self.rng)
+        if not result.success:
+            return SubgoalProposal.failure(result.failure_reason, FailureCategory.SUBGOAL)
+        return SubgoalProposal(True, result.q, head=result.head)

@@ -1,0 +1,124 @@
+"""Can the head camera see the target from a configuration?
+
+`TargetVisibility.check` aims the pan/tilt head at the target (closed form,
+per configuration), then requires the target inside the camera's field of view
+and depth range, and the line of sight free of the robot's own spheres (the
+self-occlusion check of the pre-grasp sampler) and, optionally, of map points
+(used by the observe sampler).
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from vamg_drake.robot import layout
+from vamg_drake.robot.head_camera import CameraIntrinsics, HeadCameraConfig
+from vamg_drake.robot.kinematics import CAMERA_FRAME, FetchKinematics
+from vamg_drake.robot.spheres import SphereModel
+
+
+@dc.dataclass
+class VisibilityConfig:
+    """Parameters of the target visibility check."""
+
+    camera: HeadCameraConfig = dc.field(default_factory=HeadCameraConfig)
+    #: Largest depth at which the target counts as seen [m] (the map's range).
+    max_depth: float = 3.0
+    #: Shrink of the field of view on each side [rad].
+    fov_margin: float = 0.05
+    #: The line of sight stops this short of the target (the target's own surface) [m].
+    target_margin: float = 0.04
+    #: A map point closer than this to the line of sight blocks it [m].
+    point_occlusion_radius: float = 0.03
+
+
+class TargetVisibility:
+    """Batched target visibility from the head camera."""
+
+    def __init__(self, config: VisibilityConfig | None = None) -> None:
+        self.config = config or VisibilityConfig()
+        self.kin = FetchKinematics.instance()
+        self.spheres = SphereModel.load()
+        self.intrinsics = CameraIntrinsics.from_config(self.config.camera)
+        self._pan = self.kin.link_index("head_pan_link")
+        self._tilt = self.kin.link_index("head_tilt_link")
+        self._camera = self.kin.link_index(CAMERA_FRAME)
+        self._body = ~self.spheres.is_head
+
+    def aim_head(self, q: np.ndarray, p_WT: np.ndarray) -> np.ndarray:
+        """Pan/tilt (K, 2) pointing the head at the target, clipped to the head limits."""
+        q = np.atleast_2d(q)
+        K = q.shape[0]
+        head = np.zeros((K, 2))
+        X = self.kin.link_poses(q, head)[:, self._pan]
+        p = np.einsum("kji,kj->ki", X[:, :3, :3], p_WT[None] - X[:, :3, 3])
+        head[:, 0] = np.clip(np.arctan2(p[:, 1], p[:, 0]), *layout.HEAD_PAN_LIMITS)
+        X = self.kin.link_poses(q, head)[:, self._tilt]
+        p = np.einsum("kji,kj->ki", X[:, :3, :3], p_WT[None] - X[:, :3, 3])
+        head[:, 1] = np.clip(np.arctan2(-p[:, 2], p[:, 0]), *layout.HEAD_TILT_LIMITS)
+        return head
+
+    def check(
+        self, q: np.ndarray, p_WT: np.ndarray, p_WM: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(visible (K,), head (K, 2)) for configurations q (K, 11) and target p_WT (3,).
+
+        Args:
+            q: configurations.
+            p_WT: the target.
+            p_WM: optional map points that may block the line of sight (points
+                within ``target_margin`` of the target are ignored).
+        """
+        cfg = self.config
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        p_WT = np.asarray(p_WT, dtype=float).reshape(3)
+        head = self.aim_head(q, p_WT)
+        X_WL = self.kin.link_poses(q, head)
+        X_WC = X_WL[:, self._camera]
+        p_C = np.einsum("kji,kj->ki", X_WC[:, :3, :3], p_WT[None] - X_WC[:, :3, 3])
+        depth = p_C[:, 2]
+        half_x = 0.5 * self.intrinsics.fov_x - cfg.fov_margin
+        half_y = 0.5 * self.intrinsics.fov_y - cfg.fov_margin
+        with np.errstate(divide="ignore", invalid="ignore"):
+            in_fov = (
+                (depth > cfg.camera.depth_min)
+                & (depth < cfg.max_depth)
+                & (np.abs(np.arctan2(p_C[:, 0], depth)) < half_x)
+                & (np.abs(np.arctan2(p_C[:, 1], depth)) < half_y)
+            )
+        # Line of sight from the camera to just short of the target.
+        a = X_WC[:, :3, 3]
+        seg = p_WT[None] - a
+        length = np.linalg.norm(seg, axis=1)
+        direction = seg / np.maximum(length, 1e-9)[:, None]
+        end = np.maximum(length - cfg.target_margin, 0.0)
+        centers = self.spheres.world_spheres(q, head, link_poses=X_WL)[:, self._body]  # (K, S, 3)
+        radius = self.spheres.radius[self._body]
+        rel = centers - a[:, None, :]
+        t = np.clip(np.einsum("ksi,ki->ks", rel, direction), 0.0, end[:, None])
+        closest = a[:, None, :] + t[..., None] * direction[:, None, :]
+        blocked = np.any(np.linalg.norm(centers - closest, axis=2) < radius[None], axis=1)
+        visible = in_fov & ~blocked
+        if p_WM is not None and np.any(visible):
+            visible &= ~self._blocked_by_points(a, p_WT, np.asarray(p_WM, float).reshape(-1, 3))
+        return visible, head
+
+    def _blocked_by_points(self, a: np.ndarray, p_WT: np.ndarray, p_WM: np.ndarray) -> np.ndarray:
+        cfg = self.config
+        p_WM = p_WM[np.linalg.norm(p_WM - p_WT, axis=1) > cfg.target_margin + cfg.point_occlusion_radius]
+        if p_WM.shape[0] == 0:
+            return np.zeros(a.shape[0], dtype=bool)
+        tree = cKDTree(p_WM)
+        blocked = np.zeros(a.shape[0], dtype=bool)
+        step = cfg.point_occlusion_radius
+        for k in range(a.shape[0]):
+            seg = p_WT - a[k]
+            length = np.linalg.norm(seg)
+            n = max(2, int(np.ceil((length - cfg.target_margin) / step)))
+            samples = a[k] + np.linspace(0.0, 1.0 - cfg.target_margin / max(length, 1e-9), n)[:, None] * seg
+            d, _ = tree.query(samples, distance_upper_bound=cfg.point_occlusion_radius)
+            blocked[k] = bool(np.any(np.isfinite(d)))
+        return blocked
