@@ -75,10 +75,20 @@ class HybridAStarConfig:
 
 
 @numba.njit(cache=True)
-def _poses_free(poses, clearance, origin, h, limit):
-    """True when every pose (M, 3) lies on a cell with clearance > limit."""
+def _poses_free(poses, clearance, origin, h, limit, exempt, exempt_r):
+    """True when every pose (M, 3) lies on a cell with clearance > limit.
+
+    Poses within exempt_r of a point of exempt (E, 2) are not tested (the
+    start/goal neighbourhoods, left to the whole-body 3D check).
+    """
     nx, ny = clearance.shape
     for k in range(poses.shape[0]):
+        skip = False
+        for e in range(exempt.shape[0]):
+            if (poses[k, 0] - exempt[e, 0]) ** 2 + (poses[k, 1] - exempt[e, 1]) ** 2 < exempt_r * exempt_r:
+                skip = True
+        if skip:
+            continue
         i = int(math.floor((poses[k, 0] - origin[0]) / h + 0.5))
         j = int(math.floor((poses[k, 1] - origin[1]) / h + 0.5))
         if 0 <= i < nx and 0 <= j < ny:
@@ -142,7 +152,7 @@ def _prim_poses(x, y, th, kappa, length, dth, n, out):
 
 
 @numba.njit(cache=True)
-def _search(start, goal, clearance, origin, h, limit, h2d, prims, prim_n, radius, check_step,
+def _search(start, goal, clearance, origin, h, limit, exempt, exempt_r, h2d, prims, prim_n, radius, check_step,
             theta_bins, xy_res, analytic_every, max_exp, v, heur_weight):
     """The Hybrid A* loop. Returns (status, node, poses, parents, prim ids, rs types, rs lengths, expansions).
 
@@ -189,7 +199,7 @@ def _search(start, goal, clearance, origin, h, limit, h2d, prims, prim_n, radius
         if expansions % analytic_every == 1 or dgoal < 4.0 * radius:
             types, lengths, total = rs.shortest_path(poses[idx], goal, radius)
             path = rs.sample_path(poses[idx], types, lengths, radius, check_step)
-            if _poses_free(path, clearance, origin, h, limit):
+            if _poses_free(path, clearance, origin, h, limit, exempt, exempt_r):
                 return 1, idx, poses[:n_nodes], parents[:n_nodes], prim_of[:n_nodes], types, lengths, expansions
         for p in range(prims.shape[0]):
             m = _prim_poses(x, y, th, prims[p, 0], prims[p, 1], prims[p, 2], prim_n[p], buf)
@@ -199,7 +209,7 @@ def _search(start, goal, clearance, origin, h, limit, h2d, prims, prim_n, radius
             at = int(math.floor((_wrap(qt) + math.pi) / (2.0 * math.pi) * theta_bins)) % theta_bins
             if ai < 0 or aj < 0 or ai >= gx or aj >= gy or closed[ai, aj, at]:
                 continue
-            if prims[p, 2] == 0.0 and not _poses_free(buf[:m], clearance, origin, h, limit):
+            if prims[p, 2] == 0.0 and not _poses_free(buf[:m], clearance, origin, h, limit, exempt, exempt_r):
                 continue
             # heuristic: obstacle-aware 2D distance (minus its grid slack) or Euclid
             i = int(math.floor((qx - origin[0]) / h + 0.5))
@@ -266,10 +276,13 @@ class HybridAStar:
         self.v = layout.TRACKER_BASE_V
         self.w = layout.TRACKER_BASE_W
         self._primitives = self._make_primitives()
+        self._exempt = np.zeros((0, 2))
+        self._exempt_r = 0.0
 
     def poses_free(self, poses: np.ndarray) -> bool:
         cm = self.costmap
-        return bool(_poses_free(np.ascontiguousarray(poses, float), cm.clearance, cm.origin, cm.resolution, self.limit))
+        return bool(_poses_free(np.ascontiguousarray(poses, float), cm.clearance, cm.origin, cm.resolution,
+                                self.limit, self._exempt, self._exempt_r))
 
     def reeds_shepp(self, a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         """Sampled RS path a->b (M, 3) if its poses are free, else None."""
@@ -303,14 +316,22 @@ class HybridAStar:
         cm = self.costmap
         start = np.asarray(start, float)
         goal = np.asarray(goal, float)
-        if not self.poses_free(start[None]):
-            return None, "base start in collision (stowed footprint)"
-        if not self.poses_free(goal[None]):
-            return None, "base goal in collision (stowed footprint)"
+        # A start/goal whose stowed footprint touches an obstacle (e.g. the arm
+        # of the real configuration reaches over a table) is allowed: poses
+        # near it skip the 2D test; the whole-body 3D check decides there.
+        self._exempt = np.zeros((0, 2))
+        self._exempt_r = self.radius + 2.0 * cm.margin
+        exempt = [p[:2] for p in (start, goal) if not self.poses_free(p[None])]
+        self._exempt = np.array(exempt, float).reshape(-1, 2)
         direct = self.reeds_shepp(start, goal)
         if direct is not None:
             return BasePath(direct, 0), ""
         free = cm.free_mask(self.radius)
+        if self._exempt.shape[0]:
+            gx = cm.origin[0] + cm.resolution * np.arange(free.shape[0])
+            gy = cm.origin[1] + cm.resolution * np.arange(free.shape[1])
+            for ex, ey in self._exempt:
+                free |= ((gx[:, None] - ex) ** 2 + (gy[None, :] - ey) ** 2) < self._exempt_r ** 2
         gi, gj = cm.cell(goal)
         h2d = _dijkstra_2d(free, gi, gj, cm.resolution)
         si, sj = cm.cell(start)
@@ -320,7 +341,8 @@ class HybridAStar:
         prims, counts = self._primitives
         xy_res = max(cm.resolution, 0.5 * c.step)
         status, node, poses, parents, prim_of, types, lengths, expansions = _search(
-            start, goal, cm.clearance, cm.origin, cm.resolution, self.limit, h2d, prims, counts,
+            start, goal, cm.clearance, cm.origin, cm.resolution, self.limit, self._exempt, self._exempt_r,
+            h2d, prims, counts,
             c.turning_radius, c.check_step, c.theta_bins, xy_res, c.analytic_every,
             c.max_expansions, self.v, 1.2)
         if status == -1:
