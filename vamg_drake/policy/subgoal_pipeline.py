@@ -6,12 +6,11 @@ here), the pre-grasp and observe samplers, and builds the collision check from
 the map points at each call. `SubgoalPipeline.samplers()` returns the
 `SubgoalSamplers` the behaviour tree calls.
 
-Collision checks use the planner's `CollisionChecker` with two environments:
-the robot body (every sphere but the gripper's) against all map points near
-the target, and the gripper spheres against the map points outside a small
-ball around the target -- the fingers are meant to reach the object, and the
-grasp sampler has already checked the fingers and palm against the cloud
-itself at finer resolution.
+Collision checks use the planner's `CollisionChecker` on the map points near
+the target and the robot, minus a small ball around the target, which only
+the robot body (every sphere but the gripper's) must keep clear of: the
+fingers are meant to reach the object, and the grasp sampler has already
+checked the fingers and palm against the cloud itself at finer resolution.
 
 Target checks (bad input): a non-finite target, or one enclosed by map points
 on (nearly) all sides -- inside furniture -- fails every stage at once with a
@@ -48,9 +47,11 @@ class SubgoalPipelineConfig:
     pregrasp: PregraspConfig = dc.field(default_factory=PregraspConfig)
     observe: ObserveConfig = dc.field(default_factory=ObserveConfig)
     #: Distance field resolution of the collision environment [m].
-    collision_resolution: float = 0.02
+    collision_resolution: float = 0.03
     #: Map points within this horizontal distance of the target (or the robot) are obstacles [m].
     collision_crop: float = 2.2
+    #: Map points above this height cannot touch the robot [m].
+    collision_max_height: float = 2.0
     #: The gripper ignores map points this close to the target [m].
     target_clearance: float = 0.10
     #: Map points around the target given to the grasp candidate source [m].
@@ -115,7 +116,13 @@ class SubgoalPipeline:
         return ""
 
     def collision_fn(self, p_WM: np.ndarray, p_WT: np.ndarray, q: np.ndarray):
-        """Batched ``is_free`` for configurations near the target under map points p_WM."""
+        """Batched ``is_free`` for configurations near the target under map points p_WM.
+
+        One distance field holds the map points near the target and the robot,
+        minus a ball of ``target_clearance`` around the target; the robot's
+        non-gripper spheres are also kept clear of the points inside that ball
+        (exact k-d tree distances).
+        """
         cfg = self.config
         key = (p_WM.shape[0], float(p_WM.sum()) if p_WM.size else 0.0, tuple(np.round(p_WT, 4)),
                tuple(np.round(np.asarray(q)[:2], 1)))
@@ -123,24 +130,24 @@ class SubgoalPipeline:
             return self._cache
         centers = np.stack([p_WT[:2], np.asarray(q, float)[:2]])
         dxy = np.min(np.linalg.norm(p_WM[:, None, :2] - centers[None], axis=2), axis=1) if p_WM.size else np.zeros(0)
-        local = p_WM[dxy <= cfg.collision_crop]
-        if local.shape[0] == 0:
-            local = np.array([[1e3, 1e3, 1e3]])  # an empty room: one far point
-        body = CollisionChecker.for_fetch(CollisionEnvironment.from_points(local, cfg.collision_resolution),
-                                          CollisionCheckerConfig())
-        body.check_env = ~self.spheres.is_gripper
-        away = local[np.linalg.norm(local - p_WT, axis=1) > cfg.target_clearance]
+        local = p_WM[(dxy <= cfg.collision_crop) & (p_WM[:, 2] <= cfg.collision_max_height)] if p_WM.size else p_WM
+        near_target = np.linalg.norm(local - p_WT, axis=1) <= cfg.target_clearance
+        away, close = local[~near_target], local[near_target]
         if away.shape[0] == 0:
-            away = np.array([[1e3, 1e3, 1e3]])
-        gripper = CollisionChecker.for_fetch(CollisionEnvironment.from_points(away, cfg.collision_resolution),
+            away = np.array([[1e3, 1e3, 1e3]])  # nothing observed: one far point
+        checker = CollisionChecker.for_fetch(CollisionEnvironment.from_points(away, cfg.collision_resolution),
                                              CollisionCheckerConfig())
-        gripper.check_env = self.spheres.is_gripper.copy()
+        body = ~self.spheres.is_gripper
+        body_radius = self.spheres.radius[body] + checker.padding
+        tree = cKDTree(close) if close.shape[0] else None
 
         def is_free(Q: np.ndarray) -> np.ndarray:
             Q = np.atleast_2d(Q)
-            free = body.is_free(Q)
-            if free.any():
-                free[free] = gripper.is_free(Q[free])
+            free = checker.is_free(Q)
+            if tree is not None and free.any():
+                c = self.spheres.world_spheres(Q[free])[:, body]  # (K, S, 3)
+                d, _ = tree.query(c.reshape(-1, 3))
+                free[free] = np.all(d.reshape(c.shape[:2]) > body_radius[None], axis=1)
             return free
 
         self._cache_key, self._cache = key, is_free

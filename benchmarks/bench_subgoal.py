@@ -1,0 +1,158 @@
+"""Speed and completeness of the subgoal samplers.
+
+Workload (seeded): ``--problems`` table-top scenes (a walled 6 m room, a table
+of random size, height and position, a can at a random spot on it, the robot
+stowed at a random free start >= 1.5 m away). Per problem:
+
+* pregrasp: `PregraspSampler.sample` with the paper's budget (20 bases x 128),
+  first valid sample returned (the collision environment is built beforehand
+  and timed separately as collision_env_ms);
+* grasp_candidates: `AntipodalGraspSampler.propose` on the map points within
+  0.3 m of the target (the paper's Contact-GraspNet takes 1.2 s on a GPU);
+* completeness: a problem is *solvable* when any of ``--reference-seeds`` runs
+  with 8,192 samples solves it; for each budget N the fraction of the solvable
+  problems solved with N samples (``--seeds`` seeds each) is reported
+  (paper: ~95% near 2,000 samples).
+
+Reference in the same run: Drake `InverseKinematics` (SNOPT) against the
+batched Numba `FastIk` on the same arm-only targets.
+
+Usage: python benchmarks/bench_subgoal.py [--json] [--problems N] [--seeds S]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+from vamg_drake.policy import synthetic_clouds
+from vamg_drake.policy.grasp_candidates import AntipodalGraspSampler
+from vamg_drake.policy.ik import DrakeIk, FastIk
+from vamg_drake.policy.kinematic_maps import KinematicMaps
+from vamg_drake.policy.pregrasp_sampler import BaseCostmap, PregraspSampler
+from vamg_drake.policy.subgoal_pipeline import SubgoalPipeline
+from vamg_drake.robot import layout
+from vamg_drake.robot.kinematics import FetchKinematics
+
+BUDGETS = (32, 64, 128, 256, 512, 1024, 2048, 2560, 4096)
+REFERENCE_BUDGET = 8192
+
+
+def make_problem(rng: np.random.Generator):
+    """A random table-top scene: (points, target, q_start)."""
+    half = 3.0
+    size = (rng.uniform(0.5, 0.9), rng.uniform(0.6, 1.4))
+    center = rng.uniform(-half + 1.0, half - 1.0, 2)
+    height = rng.uniform(0.45, 0.9)
+    offset = (rng.uniform(-0.5, 0.5) * (size[0] - 0.1), rng.uniform(-0.5, 0.5) * (size[1] - 0.1))
+    points, target = synthetic_clouds.tabletop_scene(tuple(center), size, height, offset, room_half_size=half)
+    while True:
+        start = rng.uniform(-half + 0.5, half - 0.5, 2)
+        in_table = np.all(np.abs(start - center) < np.array(size) / 2 + 0.5)
+        if not in_table and np.linalg.norm(start - target[:2]) >= 1.5:
+            break
+    return points, target, layout.stow_configuration(start[0], start[1], rng.uniform(-np.pi, np.pi))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--json", action="store_true")
+    parser.add_argument("--problems", type=int, default=20)
+    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--reference-seeds", type=int, default=2)
+    parser.add_argument("--ik-reference", type=int, default=40, help="targets solved by both IK solvers")
+    args = parser.parse_args()
+
+    t0 = time.perf_counter()
+    maps = KinematicMaps.load_or_build()
+    maps_load_s = time.perf_counter() - t0
+    pipeline = SubgoalPipeline(maps)
+    sampler: PregraspSampler = pipeline.pregrasp
+    grasp_source = AntipodalGraspSampler()
+    rng = np.random.default_rng(2024)
+    problems = [make_problem(rng) for _ in range(args.problems)]
+
+    # Warm-up (JIT compilation) outside the timings.
+    pts, target, q0 = problems[0]
+    sampler.sample(pts, target, q0, pipeline.collision_fn(pts, target, q0), np.random.default_rng(0), max_samples=128)
+    grasp_source.propose(pts[np.linalg.norm(pts - target, axis=1) < 0.3], target)
+
+    pregrasp_ms, pregrasp_ok, env_ms, grasp_ms, n_grasps = [], [], [], [], []
+    solved_at = {n: [] for n in BUDGETS}
+    solvable = []
+    for i, (pts, target, q0) in enumerate(problems):
+        t = time.perf_counter()
+        is_free = pipeline.collision_fn(pts, target, q0)
+        costmap = BaseCostmap.from_points(pts, sampler.config.costmap, include_xy=np.stack([target[:2], q0[:2]]), robot_xy=q0[:2])
+        env_ms.append(1e3 * (time.perf_counter() - t))
+        t = time.perf_counter()
+        r = sampler.sample(pts, target, q0, is_free, np.random.default_rng(100 + i), costmap=costmap)
+        pregrasp_ms.append(1e3 * (time.perf_counter() - t))
+        pregrasp_ok.append(r.success)
+        cloud = pts[np.linalg.norm(pts - target, axis=1) < 0.3]
+        t = time.perf_counter()
+        g = grasp_source.propose(cloud, target, np.random.default_rng(i))
+        grasp_ms.append(1e3 * (time.perf_counter() - t))
+        n_grasps.append(len(g))
+        ok_ref = r.success or any(
+            sampler.sample(pts, target, q0, is_free, np.random.default_rng(1000 + 17 * i + s), REFERENCE_BUDGET, costmap).success
+            for s in range(args.reference_seeds)
+        )
+        solvable.append(ok_ref)
+        if not ok_ref:
+            continue
+        for n in BUDGETS:
+            for s in range(args.seeds):
+                res = sampler.sample(pts, target, q0, is_free, np.random.default_rng(5000 + 31 * i + s), n, costmap)
+                solved_at[n].append(res.success)
+
+    curve = {str(n): round(float(np.mean(v)), 3) if v else None for n, v in solved_at.items()}
+
+    # IK reference: Drake InverseKinematics vs FastIk on the same arm-only targets.
+    krng = np.random.default_rng(7)
+    q = krng.uniform(layout.SAMPLE_LOWER, layout.SAMPLE_UPPER, (args.ik_reference, layout.NQ))
+    X = FetchKinematics.instance().gripper_pose(q)
+    seeds = np.tile(layout.stow_configuration(0, 0, 0), (args.ik_reference, 1))
+    seeds[:, :4] = q[:, :4]
+    fast = FastIk()
+    fast.solve_arm(X[:2], seeds[:2])
+    t = time.perf_counter()
+    _, ok_fast = fast.solve_arm(X, seeds)
+    fast_us = 1e6 * (time.perf_counter() - t) / args.ik_reference
+    drake = DrakeIk()
+    t = time.perf_counter()
+    ok_drake = [drake.solve(X[k], seeds[k])[1] for k in range(args.ik_reference)]
+    drake_ms = 1e3 * (time.perf_counter() - t) / args.ik_reference
+
+    result = {
+        "problems": args.problems,
+        "pregrasp_ms_median": round(float(np.median(pregrasp_ms)), 1),
+        "pregrasp_ms_p90": round(float(np.percentile(pregrasp_ms, 90)), 1),
+        "pregrasp_success_rate": round(float(np.mean(pregrasp_ok)), 3),
+        "collision_env_ms_median": round(float(np.median(env_ms)), 1),
+        "grasp_candidates_ms_median": round(float(np.median(grasp_ms)), 1),
+        "grasp_candidates_found_rate": round(float(np.mean(np.array(n_grasps) > 0)), 3),
+        "solvable_problems": int(np.sum(solvable)),
+        "completeness_curve": curve,
+        "completeness_at_2560": curve["2560"],
+        "ik_fast_us_per_solve": round(fast_us, 1),
+        "ik_fast_success": round(float(np.mean(ok_fast)), 3),
+        "ik_drake_ms_per_solve": round(drake_ms, 2),
+        "ik_drake_success": round(float(np.mean(ok_drake)), 3),
+        "maps_load_s": round(maps_load_s, 2),
+        "maps_reach_build_s": maps.metadata.get("reach_build_s"),
+        "maps_torso_build_s": maps.metadata.get("torso_build_s"),
+        "maps_reach_voxels": maps.metadata.get("reach_voxels"),
+        "paper": {"pregrasp_ms": 369, "grasp_candidates_ms": 1200, "completeness_near_2000": 0.95},
+    }
+    if not args.json:
+        for k, v in result.items():
+            print(f"{k:32s} {v}")
+    print(json.dumps(result))
+
+
+if __name__ == "__main__":
+    main()
