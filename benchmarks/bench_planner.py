@@ -105,7 +105,7 @@ def main() -> None:
             env = env.voxelized(0.03)
         planner = WholeBodyPlanner.for_fetch(env, PlannerConfig(seed=seed))
         t0 = time.perf_counter()
-        planner._base_planner()  # the per-map costmap
+        planner.prepare_costmap(problem.q_start, problem.q_goal)  # the per-map costmap
         costmap_ms = 1e3 * (time.perf_counter() - t0)
         t0 = time.perf_counter()
         result = planner.plan(problem.q_start, problem.q_goal)

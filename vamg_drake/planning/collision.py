@@ -192,7 +192,8 @@ class CollisionEnvironment:
         occ = (d <= 0.5 * SQRT3 * resolution).reshape(shape)
         return CollisionEnvironment(field=DistanceField.from_occupancy(occ, origin, resolution))
 
-    def footprint_field_2d(self, z_min: float, z_max: float, resolution: float = 0.05):
+    def footprint_field_2d(self, z_min: float, z_max: float, resolution: float = 0.05,
+                           cover_xy: tuple[np.ndarray, np.ndarray] | None = None):
         """A 2D clearance map of everything between z_min and z_max.
 
         With a distance field, its occupied voxels in the z band are projected
@@ -207,6 +208,7 @@ class CollisionEnvironment:
             cell centre, origin (2,) centre of cell (0, 0), resolution, margin)
             where margin = sqrt(2) h bounds the discretization like the 3D field:
             a disc of radius r at a point p is free if dist(cell(p)) - margin > r.
+            The grid covers the obstacles and the xy box `cover_xy` (lo, hi).
         """
         f = self.field
         has_prims = self.box_p.shape[0] + self.cyl_p.shape[0] > 0
@@ -225,7 +227,20 @@ class CollisionEnvironment:
             shape = np.maximum(np.ceil((hi - origin) / h).astype(int) + 1, 1)
             occ = np.zeros(shape, bool)
         else:
-            return np.full((1, 1), 1e6, np.float32), np.zeros(2), resolution, math.sqrt(2) * resolution
+            h = resolution
+            if cover_xy is None:
+                return np.full((1, 1), 1e6, np.float32), np.zeros(2), h, math.sqrt(2) * h
+            origin = np.floor(np.asarray(cover_xy[0], float) / h) * h + 0.5 * h
+            shape = np.maximum(np.ceil((np.asarray(cover_xy[1], float) - origin) / h).astype(int) + 1, 1)
+            return np.full(shape, 1e6, np.float32), origin, h, math.sqrt(2) * h
+        if cover_xy is not None:
+            lo_c = np.floor((np.asarray(cover_xy[0], float) - origin) / h).astype(int)
+            hi_c = np.ceil((np.asarray(cover_xy[1], float) - origin) / h).astype(int)
+            pad_lo = np.maximum(-lo_c, 0)
+            pad_hi = np.maximum(hi_c - (np.array(occ.shape) - 1), 0)
+            if np.any(pad_lo) or np.any(pad_hi):
+                occ = np.pad(occ, [(pad_lo[0], pad_hi[0]), (pad_lo[1], pad_hi[1])])
+                origin = origin - pad_lo * h
         if has_prims:
             zs = np.arange(max(z_min, -1.0), z_max + h, h)
             test_r = math.hypot(0.5 * math.sqrt(2) * h, 0.5 * h)

@@ -81,7 +81,7 @@ class PlannerConfig:
     max_attempts: int = 3
     seed: int = 0
     turning_radius: float = 0.4
-    costmap_resolution: float = 0.05
+    costmap_resolution: float = 0.025
     motion_resolution: float = 0.03
     extra_padding: float = 0.0
     base_shortcut_iterations: int = 15
@@ -164,11 +164,30 @@ class WholeBodyPlanner:
         self.checker.set_environment(env)
         self._hybrid = None
 
-    def _base_planner(self) -> HybridAStar:
+    def prepare_costmap(self, *base_poses: np.ndarray) -> None:
+        """Builds the 2D base costmap of the current environment now (it is
+        otherwise built by the first `plan` on a new environment), covering
+        the given base poses (x, y, theta)."""
+        self._base_planner(*base_poses)
+
+    def _base_planner(self, *poses: np.ndarray) -> HybridAStar:
+        """The base planner on the current environment's 2D costmap, which
+        covers the obstacles and the given base poses with room to manoeuvre."""
+        margin_xy = 1.0
+        if self._hybrid is not None and poses:
+            cm = self._hybrid.costmap
+            lo = cm.origin + margin_xy
+            hi = cm.origin + cm.resolution * (np.array(cm.clearance.shape) - 1) - margin_xy
+            if any(np.any(p[:2] < lo) or np.any(p[:2] > hi) for p in poses):
+                self._hybrid = None
         if self._hybrid is None:
             env = self.checker.env
+            cover = None
+            if poses:
+                xy = np.array([p[:2] for p in poses])
+                cover = (xy.min(axis=0) - margin_xy, xy.max(axis=0) + margin_xy)
             dist, origin, res, margin = env.footprint_field_2d(-10.0, self.robot_top + 0.05,
-                                                               self.config.costmap_resolution)
+                                                               self.config.costmap_resolution, cover)
             cm = Costmap2D(dist, origin, res, margin)
             self._hybrid = HybridAStar(cm, self.footprint_radius, HybridAStarConfig(
                 turning_radius=self.config.turning_radius,
@@ -224,11 +243,7 @@ class WholeBodyPlanner:
         if not self.checker.is_free(qg[None])[0]:
             return fail(FailureReason.GOAL_IN_COLLISION, "the goal configuration is in collision")
         qg = _unwrap_toward(qs, qg)
-        hybrid = self._base_planner()
-        if not hybrid.poses_free(qg[None, :3]) and np.hypot(*(qg[:2] - qs[:2])) > 1e-3:
-            # The goal base pose is free in 3D with its own arm, but the stowed
-            # footprint is not: the arm must unfold before the goal; handled below.
-            pass
+        self._base_planner(qs[:3], qg[:3])
         reason, message = FailureReason.TIMEOUT, ""
         for attempt in range(self.config.max_attempts):
             rng = np.random.default_rng([self.config.seed, attempt])
@@ -266,7 +281,7 @@ class WholeBodyPlanner:
             if arm is None:
                 return None, FailureReason.NO_ARM_PATH, "no fixed-base arm path"
             return self._refine([arm], timings, rng, deadline), "", ""
-        hybrid = self._base_planner()
+        hybrid = self._base_planner(qs[:3], qg[:3])
         base_start, base_goal = qs[:3].copy(), qg[:3].copy()
         res, why = self._base_path(hybrid, base_start, base_goal, rng, deadline)
         timings["base"] += 1e3 * (time.perf_counter() - tb)
