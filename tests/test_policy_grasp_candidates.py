@@ -165,3 +165,16 @@ def test_rank_and_select_with_capability_ik_and_collision() -> None:
     assert not none.success and "collision" in none.failure_reason
     empty = select_grasp_goal(GraspCandidates.empty("no points"), np.zeros(11), np.eye(4), np.zeros(3), fake_arm_ik, is_free, None)
     assert not empty.success and "no points" in empty.failure_reason
+
+
+@pytest.mark.parametrize("voxel", [0.01, 0.02])
+def test_map_resolution_clouds(voxel: float) -> None:
+    """Clouds thinned to the map's voxel size still give grasps on objects, none on a wall."""
+    from vamg_drake.policy.grasp_candidates import voxel_downsample
+
+    table = clouds.table_top_cloud(z=TABLE_Z, center_xy=CENTER[:2], size=0.6, spacing=voxel)
+    for name, obj in _objects().items():
+        cloud = voxel_downsample(np.concatenate([obj, table]), voxel)
+        assert len(AntipodalGraspSampler().propose(cloud, obj.mean(axis=0))) > 0, (name, voxel)
+    wall = voxel_downsample(clouds.wall_patch_cloud(center=(2.0, 0.0, 1.0), normal=(-1, 0, 0), noise=0.002), voxel)
+    assert len(AntipodalGraspSampler().propose(wall, np.array([2.0, 0.0, 1.0]))) == 0

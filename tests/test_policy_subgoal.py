@@ -166,3 +166,18 @@ def test_non_finite_target(pipeline, scene) -> None:
     for sample in (pipeline.sample_grasp, pipeline.sample_pregrasp, pipeline.sample_observe):
         p = sample(PolicyInputs(0.0, layout.stow_configuration(0, 0, 0), points, np.array([np.nan, 0.0, 1.0])))
         assert not p.success and "finite" in p.failure_reason
+
+
+def test_dense_target_cloud_feeds_the_grasp_candidates(pipeline, scene) -> None:
+    points, target = scene
+    walls_only = clouds.room_walls_cloud()
+    dense = points[np.linalg.norm(points - target, axis=1) < 0.3]
+    # From the pre-grasp standpoint of the scene the dense cloud alone yields a grasp.
+    q = pipeline.pregrasp.sample(points, target, layout.stow_configuration(-1.5, 0.5, 0.0),
+                                 pipeline.collision_fn(points, target, layout.stow_configuration(-1.5, 0.5, 0.0)),
+                                 np.random.default_rng(1)).q
+    assert np.all(np.isfinite(q))
+    without = pipeline.sample_grasp(PolicyInputs(0.0, q, walls_only, target))
+    assert not without.success and "too few observed points" in without.failure_reason
+    with_dense = pipeline.sample_grasp(PolicyInputs(0.0, q, walls_only, target, dense))
+    assert "too few observed points" not in with_dense.failure_reason

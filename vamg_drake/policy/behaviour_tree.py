@@ -86,12 +86,15 @@ class Stage(enum.Enum):
 
 @dc.dataclass(frozen=True)
 class PolicyInputs:
-    """What a sampler sees: time, configuration, map points and the target."""
+    """What a sampler sees: time, configuration, map points, the target and,
+    optionally, a dense cloud of the target's surroundings (e.g. the latest depth
+    image back-projected around the target, denser than the voxelized map)."""
 
     time: float
     q: np.ndarray
     p_WM: np.ndarray
     p_WT: np.ndarray
+    p_WS: np.ndarray | None = None
 
 
 @dc.dataclass(frozen=True)

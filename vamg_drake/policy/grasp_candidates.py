@@ -194,6 +194,8 @@ class AntipodalGraspSampler:
 
     def __init__(self, config: AntipodalGraspConfig | None = None) -> None:
         self.config = config or AntipodalGraspConfig()
+        self._line_tolerance = self.config.line_tolerance
+        self._margin = self.config.margin
 
     def propose(
         self,
@@ -216,6 +218,11 @@ class AntipodalGraspSampler:
                 f"too few observed points near the target: {np.count_nonzero(near)} within "
                 f"{cfg.grasp_radius} m (need {cfg.min_points})"
             )
+        # Tolerances grow with the cloud's point spacing (a map voxelized at
+        # 1-2 cm instead of a raw depth cloud); ``voxel_size`` sets the floor.
+        spacing = float(np.median(cKDTree(crop).query(crop, k=2)[0][:, 1]))
+        self._line_tolerance = max(cfg.line_tolerance, 0.75 * spacing)
+        self._margin = max(cfg.margin, 0.5 * spacing)
         normals, _ = estimate_normals(crop, cfg.normal_neighbours)
         pairs = self._antipodal_pairs(crop, normals, np.flatnonzero(near), rng)
         if pairs.shape[0] == 0:
@@ -257,7 +264,7 @@ class AntipodalGraspSampler:
         """Index pairs (i, j) of antipodal contacts, i among the seeds."""
         cfg = self.config
         cos_cone = np.cos(np.arctan(cfg.friction_coefficient))
-        max_width = cfg.gripper.max_opening - 2.0 * cfg.margin
+        max_width = cfg.gripper.max_opening - 2.0 * self._margin
         seeds = rng.choice(seeds_pool, size=min(cfg.num_seeds, seeds_pool.size), replace=False)
         pairs: list[np.ndarray] = []
         for chunk in np.array_split(seeds, max(1, seeds.size // 64)):
@@ -269,7 +276,7 @@ class AntipodalGraspSampler:
                 direction = offset / dist[:, :, None]
             cos_j = np.abs(np.einsum("snk,nk->sn", direction, normals))
             valid = (
-                (perp <= cfg.line_tolerance)
+                (perp <= self._line_tolerance)
                 & (dist >= cfg.min_width)
                 & (dist <= max_width)
                 & (np.abs(along) >= cos_cone * dist)
@@ -295,7 +302,7 @@ class AntipodalGraspSampler:
             np.ascontiguousarray(points),
             np.ascontiguousarray(X_WG),
             np.ascontiguousarray(width),
-            cfg.margin,
+            self._margin,
             0.5 * g.max_opening,
             g.fingertip_x,
             g.finger_length,

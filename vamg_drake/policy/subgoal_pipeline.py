@@ -168,6 +168,9 @@ class SubgoalPipeline:
         if problem:
             return SubgoalProposal.failure(problem, FailureCategory.PERCEPTION)
         cloud = p_WM[np.linalg.norm(p_WM - p_WT, axis=1) <= self.config.grasp_cloud_radius]
+        if inputs.p_WS is not None and len(inputs.p_WS):
+            dense = np.asarray(inputs.p_WS, dtype=float).reshape(-1, 3)
+            cloud = np.concatenate([dense[np.linalg.norm(dense - p_WT, axis=1) <= self.config.grasp_cloud_radius], cloud])
         candidates = self.grasp_source.propose(cloud, p_WT, self.rng)
         if len(candidates) == 0:
             return SubgoalProposal.failure(f"no grasp candidates: {candidates.failure_reason}", FailureCategory.PERCEPTION)

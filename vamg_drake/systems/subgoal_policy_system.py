@@ -55,6 +55,7 @@ class SubgoalPolicy(LeafSystem):
         - robot_configuration (11-vector q)
         - target (3-vector p_WT)
         - motion_feedback (MotionFeedback, optional)
+        - target_cloud ((N, 3) array p_WS, optional: a dense cloud around the target for grasp candidates)
         output_ports:
         - goal (SubgoalCommand)
         - phase (str, the Phase value)
@@ -77,6 +78,7 @@ class SubgoalPolicy(LeafSystem):
         self._q_port = self.DeclareVectorInputPort("robot_configuration", layout.NQ)
         self._target_port = self.DeclareVectorInputPort("target", 3)
         self._feedback_port = self.DeclareAbstractInputPort("motion_feedback", AbstractValue.Make(MotionFeedback()))
+        self._cloud_port = self.DeclareAbstractInputPort("target_cloud", AbstractValue.Make(np.zeros((0, 3))))
         self._command_index = self.DeclareAbstractState(AbstractValue.Make(_initial_command()))
         self._handled_index = self.DeclareAbstractState(AbstractValue.Make(MotionFeedback()))
         self._gripper_index = self.DeclareDiscreteState(BasicVector([layout.GRIPPER_MAX_OPENING]))
@@ -116,7 +118,8 @@ class SubgoalPolicy(LeafSystem):
         snapshot = self._map_port.Eval(context) if self._map_port.HasValue(context) else None
         p_WM = np.zeros((0, 3)) if snapshot is None else np.asarray(snapshot.points, dtype=float)
         target = np.asarray(self._target_port.Eval(context), dtype=float)
-        inputs = PolicyInputs(context.get_time(), q, p_WM, target)
+        cloud = np.asarray(self._cloud_port.Eval(context), dtype=float) if self._cloud_port.HasValue(context) else None
+        inputs = PolicyInputs(context.get_time(), q, p_WM, target, cloud)
         event = self._event(context, q, command, state)
         new_command = self._behaviour.step(inputs, event)
         if new_command.goal_id != command.goal_id or new_command.phase != command.phase:
