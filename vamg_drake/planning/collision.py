@@ -780,8 +780,12 @@ def densify(path: np.ndarray, checker: CollisionChecker, resolution: float | Non
     res = checker.config.motion_resolution if resolution is None else resolution
     d = checker.sphere_displacement_bound(np.diff(path, axis=0))
     counts = np.maximum(np.ceil(d / res).astype(np.int64), 1)
-    out = [path[:1]]
-    for i, n in enumerate(counts):
-        s = (np.arange(1, n + 1) / n)[:, None]
-        out.append(path[i] + s * (path[i + 1] - path[i]))
-    return np.concatenate(out)
+    # Segment index and fraction of every output state after the first.
+    seg = np.repeat(np.arange(counts.shape[0]), counts)
+    ends = np.cumsum(counts)
+    k = np.arange(1, ends[-1] + 1) - np.repeat(ends - counts, counts)
+    frac = (k / np.repeat(counts, counts))[:, None]
+    out = np.empty((ends[-1] + 1, path.shape[1]))
+    out[0] = path[0]
+    out[1:] = path[seg] + frac * (path[seg + 1] - path[seg])
+    return out

@@ -65,11 +65,11 @@ class HybridAStarConfig:
     """
 
     turning_radius: float = 0.4
-    step: float = 0.2
+    step: float = 0.3
     theta_bins: int = 36
     reverse_penalty: float = 1.5
     allow_in_place_rotation: bool = True
-    analytic_every: int = 4
+    analytic_every: int = 8
     max_expansions: int = 20000
     check_step: float = 0.04
 
@@ -278,6 +278,7 @@ class HybridAStar:
         self._primitives = self._make_primitives()
         self._exempt = np.zeros((0, 2))
         self._exempt_r = 0.0
+        self._free = None
 
     def poses_free(self, poses: np.ndarray) -> bool:
         cm = self.costmap
@@ -326,14 +327,14 @@ class HybridAStar:
         direct = self.reeds_shepp(start, goal)
         if direct is not None:
             return BasePath(direct, 0), ""
-        free = cm.free_mask(self.radius)
+        free = self._free_mask()
         if self._exempt.shape[0]:
+            free = free.copy()
             gx = cm.origin[0] + cm.resolution * np.arange(free.shape[0])
             gy = cm.origin[1] + cm.resolution * np.arange(free.shape[1])
             for ex, ey in self._exempt:
                 free |= ((gx[:, None] - ex) ** 2 + (gy[None, :] - ey) ** 2) < self._exempt_r ** 2
-        gi, gj = cm.cell(goal)
-        h2d = _dijkstra_2d(free, gi, gj, cm.resolution)
+        h2d = self._heuristic_grid(free, goal)
         si, sj = cm.cell(start)
         nx, ny = free.shape
         if 0 <= si < nx and 0 <= sj < ny and not np.isfinite(h2d[si, sj]):
@@ -364,6 +365,25 @@ class HybridAStar:
         tail = rs.sample_path(poses[node], types, lengths, c.turning_radius, c.check_step)
         segs.append(tail[1:])
         return BasePath(np.concatenate(segs), int(expansions)), ""
+
+    def _free_mask(self) -> np.ndarray:
+        if self._free is None:
+            self._free = self.costmap.free_mask(self.radius)
+        return self._free
+
+    def _heuristic_grid(self, free: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """Obstacle-aware distances to the goal on a 2x coarser grid (a coarse
+        cell is free when any of its cells is: an underestimate), upsampled."""
+        cm = self.costmap
+        nx, ny = free.shape
+        px, py = nx % 2, ny % 2
+        f = np.pad(free, ((0, px), (0, py)))
+        coarse = f.reshape(f.shape[0] // 2, 2, f.shape[1] // 2, 2).any(axis=(1, 3))
+        gi, gj = cm.cell(goal)
+        d = _dijkstra_2d(coarse, gi // 2, gj // 2, 2.0 * cm.resolution)
+        # Coarse cell centres sit up to one fine diagonal from fine ones.
+        d = np.repeat(np.repeat(d, 2, axis=0), 2, axis=1)[:nx, :ny]
+        return np.maximum(d - 2.0 * math.sqrt(2.0) * cm.resolution, 0.0)
 
     def shortcut(self, poses: np.ndarray, rng: np.random.Generator, iterations: int = 20) -> np.ndarray:
         """Randomized shortcutting of a base path with Reeds-Shepp connections."""
