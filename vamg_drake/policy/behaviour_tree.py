@@ -28,8 +28,6 @@ Pre-grasp and observe goals are budgeted (``max_pregrasp_goals``,
 exhausted or fails to sample, Fail ends the episode with a category.
 """
 
-from __future__ import annotations
-
 import dataclasses as dc
 import enum
 from typing import Callable
@@ -264,6 +262,7 @@ class SubgoalBehaviour:
 
     def __init__(self, samplers: SubgoalSamplers, config: BehaviourConfig | None = None) -> None:
         self.config = config or BehaviourConfig()
+        self.config.__post_init__()  # YAML-loaded configs skip __post_init__
         self._state = _State()
         self.root = py_trees.composites.Selector("Subgoal", memory=False)
         for stage, sampler, name in (

@@ -21,8 +21,6 @@ origin mid finger pads, +x the approach direction, +y the finger-closing axis,
 +z = x cross y.
 """
 
-from __future__ import annotations
-
 import dataclasses as dc
 from typing import Protocol
 
@@ -194,6 +192,7 @@ class AntipodalGraspSampler:
 
     def __init__(self, config: AntipodalGraspConfig | None = None) -> None:
         self.config = config or AntipodalGraspConfig()
+        self.config.__post_init__()  # YAML-loaded configs skip __post_init__
         self._line_tolerance = self.config.line_tolerance
         self._margin = self.config.margin
 

@@ -10,8 +10,6 @@ collision-free. Each candidate's pre-grasp (5 cm back along -x of G) is solved
 and checked too, since the robot moves there first.
 """
 
-from __future__ import annotations
-
 import dataclasses as dc
 from typing import Callable
 

@@ -14,8 +14,6 @@ Tolerances are explicit: a solution is accepted when its position error is
 below ``position_tolerance`` and its rotation error below ``angle_tolerance``.
 """
 
-from __future__ import annotations
-
 import dataclasses as dc
 import math
 
@@ -129,6 +127,7 @@ class FastIk:
 
     def __init__(self, config: IkConfig | None = None, chain: ArmChain | None = None) -> None:
         self.config = config or IkConfig()
+        self.config.__post_init__()  # YAML-loaded configs skip __post_init__
         self.chain = chain or ArmChain.load()
         self._rng = np.random.default_rng(self.config.seed)
 

@@ -27,8 +27,6 @@ folder named by the hash of ``models/fetch/fetch.urdf`` and of the map config,
 so a changed robot model or resolution rebuilds them.
 """
 
-from __future__ import annotations
-
 import dataclasses as dc
 import hashlib
 import json
@@ -81,8 +79,8 @@ class KinematicMapsConfig:
     #: the argmax (1 = the paper's raw argmax); compensates for 5x fewer samples.
     torso_smoothing_cells: int = 3
     #: Lower corner and size of the base-frame box the maps cover [m].
-    box_lower: tuple[float, float, float] = (-1.2, -1.4, 0.0)
-    box_size: tuple[float, float, float] = (2.6, 2.8, 2.2)
+    box_lower: list[float] = dc.field(default_factory=lambda: [-1.2, -1.4, 0.0])
+    box_size: list[float] = dc.field(default_factory=lambda: [2.6, 2.8, 2.2])
     batch: int = 1 << 20
     seed: int = 0
 
@@ -95,6 +93,8 @@ class KinematicMapsConfig:
         for name in ("reach_samples", "torso_samples", "batch"):
             if getattr(self, name) < 1:
                 raise ValueError(f"KinematicMapsConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if len(self.box_lower) != 3 or len(self.box_size) != 3 or min(self.box_size) <= 0:
+            raise ValueError("KinematicMapsConfig.box_lower / box_size must be 3-vectors with positive sizes")
         for name in ("position_resolution", "torso_position_resolution", "torso_bin"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"KinematicMapsConfig.{name} must be > 0, got {getattr(self, name)}")
@@ -356,6 +356,7 @@ class KinematicMaps:
         from tqdm import tqdm
 
         config = config or KinematicMapsConfig()
+        config.__post_init__()  # YAML-loaded configs skip __post_init__
         chain = ArmChain.load()
         rng = np.random.default_rng(config.seed)
         lower = np.asarray(config.box_lower, dtype=float)

@@ -9,8 +9,6 @@ sight free of the robot and of map points. The valid pose nearest to the
 current base wins.
 """
 
-from __future__ import annotations
-
 import dataclasses as dc
 import time
 from typing import Callable
@@ -30,7 +28,7 @@ class ObserveConfig:
 
     costmap: CostmapConfig = dc.field(default_factory=CostmapConfig)
     #: Standoff distances from the target tried in order [m].
-    standoff: tuple[float, ...] = (1.2, 1.6, 0.9)
+    standoff: list[float] = dc.field(default_factory=lambda: [1.2, 1.6, 0.9])
     #: Base poses per standoff circle.
     num_angles: int = 36
     #: Weight of the yaw change against the distance when choosing the nearest [m/rad].
@@ -59,6 +57,8 @@ class ObserveSampler:
     def __init__(self, visibility: TargetVisibility | None = None, config: ObserveConfig | None = None) -> None:
         self.visibility = visibility or TargetVisibility()
         self.config = config or ObserveConfig()
+        self.config.__post_init__()  # YAML-loaded configs skip __post_init__
+        self.config.costmap.__post_init__()
 
     def sample(
         self,

@@ -21,8 +21,6 @@ from the head camera (`TargetVisibility`). Bases are visited one at a time
 valid configuration is returned, as in the paper's Algorithm.
 """
 
-from __future__ import annotations
-
 import dataclasses as dc
 import time
 from typing import Callable
@@ -193,7 +191,7 @@ class PregraspConfig:
     #: Radius of the end-effector sphere around the target [m] (paper: 0.10).
     ee_radius: float = 0.10
     #: Horizontal distance of base samples from the target [m] (the arm's reach).
-    base_radius: tuple[float, float] = (0.35, 1.05)
+    base_radius: list[float] = dc.field(default_factory=lambda: [0.35, 1.05])
     #: Use the capability map to filter end-effector samples.
     use_capability: bool = True
     seed: int = 0
@@ -201,7 +199,7 @@ class PregraspConfig:
     def __post_init__(self) -> None:
         if self.num_bases < 1 or self.samples_per_base < 1:
             raise ValueError("PregraspConfig: num_bases and samples_per_base must be >= 1")
-        if not 0 <= self.base_radius[0] < self.base_radius[1]:
+        if len(self.base_radius) != 2 or not 0 <= self.base_radius[0] < self.base_radius[1]:
             raise ValueError(f"PregraspConfig.base_radius must be (min, max) with min < max, got {self.base_radius}")
 
 
@@ -265,6 +263,8 @@ class PregraspSampler:
         self.ik = ik or FastIk()
         self.visibility = visibility or TargetVisibility()
         self.config = config or PregraspConfig()
+        self.config.__post_init__()  # YAML-loaded configs skip __post_init__
+        self.config.costmap.__post_init__()
 
     def sample(
         self,

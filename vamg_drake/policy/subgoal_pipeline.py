@@ -18,8 +18,6 @@ clear reason; a target outside the room fails because no navigable base cell
 lies within the arm's reach of it.
 """
 
-from __future__ import annotations
-
 import dataclasses as dc
 
 import numpy as np

@@ -7,8 +7,6 @@ self-occlusion check of the pre-grasp sampler) and, optionally, of map points
 (used by the observe sampler).
 """
 
-from __future__ import annotations
-
 import dataclasses as dc
 
 import numpy as np
@@ -22,9 +20,9 @@ from vamg_drake.robot.spheres import SphereModel
 
 @dc.dataclass
 class VisibilityConfig:
-    """Parameters of the target visibility check."""
+    """Parameters of the target visibility check (the camera itself is a
+    `HeadCameraConfig` given to `TargetVisibility`)."""
 
-    camera: HeadCameraConfig = dc.field(default_factory=HeadCameraConfig)
     #: Largest depth at which the target counts as seen [m] (the map's range).
     max_depth: float = 3.0
     #: Shrink of the field of view on each side [rad].
@@ -38,11 +36,12 @@ class VisibilityConfig:
 class TargetVisibility:
     """Batched target visibility from the head camera."""
 
-    def __init__(self, config: VisibilityConfig | None = None) -> None:
+    def __init__(self, config: VisibilityConfig | None = None, camera: HeadCameraConfig | None = None) -> None:
         self.config = config or VisibilityConfig()
+        self.camera = camera or HeadCameraConfig()
         self.kin = FetchKinematics.instance()
         self.spheres = SphereModel.load()
-        self.intrinsics = CameraIntrinsics.from_config(self.config.camera)
+        self.intrinsics = CameraIntrinsics.from_config(self.camera)
         self._pan = self.kin.link_index("head_pan_link")
         self._tilt = self.kin.link_index("head_tilt_link")
         self._camera = self.kin.link_index(CAMERA_FRAME)
@@ -84,7 +83,7 @@ class TargetVisibility:
         half_y = 0.5 * self.intrinsics.fov_y - cfg.fov_margin
         with np.errstate(divide="ignore", invalid="ignore"):
             in_fov = (
-                (depth > cfg.camera.depth_min)
+                (depth > self.camera.depth_min)
                 & (depth < cfg.max_depth)
                 & (np.abs(np.arctan2(p_C[:, 0], depth)) < half_x)
                 & (np.abs(np.arctan2(p_C[:, 1], depth)) < half_y)

@@ -1,7 +1,5 @@
 """SubgoalPolicy: the LeafSystem adapter over `vamg_drake.policy.behaviour_tree`."""
 
-from __future__ import annotations
-
 import dataclasses as dc
 import logging
 

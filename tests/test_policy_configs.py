@@ -1,0 +1,41 @@
+"""Every policy config round-trips through Drake's typed YAML."""
+
+from __future__ import annotations
+
+import pytest
+from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
+
+from vamg_drake.policy.behaviour_tree import BehaviourConfig, SubgoalBehaviour, SubgoalSamplers
+from vamg_drake.policy.grasp_candidates import AntipodalGraspConfig, AntipodalGraspSampler
+from vamg_drake.policy.ik import IkConfig
+from vamg_drake.policy.kinematic_maps import KinematicMapsConfig
+from vamg_drake.policy.subgoal_pipeline import SubgoalPipelineConfig
+from vamg_drake.policy.visibility import VisibilityConfig
+from vamg_drake.systems.subgoal_policy_system import SubgoalPolicyConfig
+
+
+@pytest.mark.parametrize(
+    "schema",
+    [SubgoalPipelineConfig, KinematicMapsConfig, AntipodalGraspConfig, BehaviourConfig, SubgoalPolicyConfig, VisibilityConfig, IkConfig],
+)
+def test_yaml_round_trip(schema) -> None:
+    assert yaml_load_typed(schema=schema, data=yaml_dump_typed(schema())) == schema()
+
+
+def test_partial_yaml_overrides() -> None:
+    c = yaml_load_typed(schema=SubgoalPipelineConfig, data="pregrasp: {num_bases: 10}\nobserve: {standoff: [1.0, 1.5]}")
+    assert c.pregrasp.num_bases == 10 and c.observe.standoff == [1.0, 1.5]
+    assert c.pregrasp.samples_per_base == 128
+
+
+def test_bad_values_name_the_field() -> None:
+    # yaml_load_typed skips __post_init__: the consumers validate.
+    c = yaml_load_typed(schema=AntipodalGraspConfig, data="friction_coefficient: 0.0")
+    with pytest.raises(ValueError, match="friction_coefficient"):
+        AntipodalGraspSampler(c)
+    b = yaml_load_typed(schema=BehaviourConfig, data="max_total_failures: -2")
+    with pytest.raises(ValueError, match="max_total_failures"):
+        SubgoalBehaviour(SubgoalSamplers(None, None, None), b)
+    p = yaml_load_typed(schema=SubgoalPipelineConfig, data="pregrasp: {base_radius: [1.0, 0.5]}")
+    with pytest.raises(ValueError, match="base_radius"):
+        p.pregrasp.__post_init__()
