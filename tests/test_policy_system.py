@@ -95,3 +95,25 @@ def test_policy_system_motion_failure_feedback() -> None:
     # Goal 1 (pre-grasp) failed once, handled once: a fresh pre-grasp goal 2.
     assert goal.phase == Phase.PREGRASP and goal.goal_id == 2
     assert policy.behaviour.motion_failures["pregrasp"] == 1
+
+
+def test_real_subgoal_policy_in_a_diagram() -> None:
+    from vamg_drake.policy import synthetic_clouds
+    from vamg_drake.systems.subgoal_policy_system import make_subgoal_policy
+
+    points, target = synthetic_clouds.tabletop_scene()
+    q0 = layout.stow_configuration(-1.5, 0.5, 0.0)
+    builder = DiagramBuilder()
+    policy = builder.AddSystem(make_subgoal_policy())
+    snapshot = PointMapSnapshot(points, np.floor(points / 0.03).astype(np.int64), 0.03, 1)
+    m = builder.AddSystem(ConstantValueSource(AbstractValue.Make(snapshot)))
+    q = builder.AddSystem(ConstantVectorSource(q0))
+    t = builder.AddSystem(ConstantVectorSource(target))
+    builder.Connect(m.get_output_port(), policy.GetInputPort("point_map"))
+    builder.Connect(q.get_output_port(), policy.GetInputPort("robot_configuration"))
+    builder.Connect(t.get_output_port(), policy.GetInputPort("target"))
+    sim = Simulator(builder.Build())
+    sim.AdvanceTo(0.05)
+    goal = policy.GetOutputPort("goal").Eval(policy.GetMyContextFromRoot(sim.get_context()))
+    assert goal.phase == Phase.PREGRASP and goal.motion == "plan", policy.behaviour.tree_status()
+    assert np.all(np.isfinite(goal.q_goal)) and np.all(np.isfinite(goal.head))

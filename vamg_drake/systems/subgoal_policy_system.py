@@ -8,12 +8,15 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
 from vamg_drake.policy.behaviour_tree import (
+    BehaviourConfig,
     MotionEvent,
     Phase,
     PolicyInputs,
     SubgoalBehaviour,
     SubgoalCommand,
 )
+from vamg_drake.policy.kinematic_maps import KinematicMaps
+from vamg_drake.policy.subgoal_pipeline import SubgoalPipeline, SubgoalPipelineConfig
 from vamg_drake.robot import layout
 
 _log = logging.getLogger(__name__)
@@ -125,3 +128,15 @@ class SubgoalPolicy(LeafSystem):
         state.get_mutable_abstract_state(self._command_index).set_value(new_command)
         state.get_mutable_discrete_state(self._gripper_index).set_value([new_command.gripper_opening])
         return EventStatus.Succeeded()
+
+
+def make_subgoal_policy(
+    pipeline_config: SubgoalPipelineConfig | None = None,
+    behaviour_config: BehaviourConfig | None = None,
+    config: SubgoalPolicyConfig | None = None,
+    maps: KinematicMaps | None = None,
+    seed: int = 0,
+) -> SubgoalPolicy:
+    """The SubgoalPolicy over the real samplers (kinematic maps built on first use)."""
+    pipeline = SubgoalPipeline(maps or KinematicMaps.load_or_build(), config=pipeline_config, seed=seed)
+    return SubgoalPolicy(SubgoalBehaviour(pipeline.samplers(), behaviour_config), config)
