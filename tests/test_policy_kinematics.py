@@ -146,3 +146,15 @@ def test_missing_maps_are_built_on_demand(tmp_path, capsys) -> None:
 def test_maps_config_validation() -> None:
     with pytest.raises(ValueError, match="reach_samples"):
         KinematicMapsConfig(reach_samples=0)
+
+
+def test_drake_ik_collision_aware() -> None:
+    from vamg_drake.robot.spheres import SphereModel
+
+    q = layout.stow_configuration(0, 0, 0)
+    q[layout.ARM] = [0.3, 0.2, 0.0, 1.0, 0.0, 0.8, 0.0]
+    X = FetchKinematics.instance().gripper_pose(q)
+    q_sol, ok = DrakeIk(collision_distance=0.005).solve(X, layout.stow_configuration(0, 0, 0))
+    assert ok
+    np.testing.assert_allclose(FetchKinematics.instance().gripper_pose(q_sol)[:3, 3], X[:3, 3], atol=2.5e-3)
+    assert SphereModel.load().self_collision_free(q_sol[None])[0]
