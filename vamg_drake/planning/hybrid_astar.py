@@ -246,22 +246,10 @@ def _search(start, goal, clearance, origin, h, limit, exempt, exempt_r, h2d, pri
 
 @dataclasses.dataclass(frozen=True)
 class BasePath:
-    """Base poses (N, 3) (theta unwrapped) and whether each step reverses."""
+    """Base poses (N, 3) (theta unwrapped) and the search's expansion count."""
 
     poses: np.ndarray
     expansions: int
-
-
-def _arc(pose: np.ndarray, kappa: float, length: float, n: int) -> np.ndarray:
-    """n poses along an arc of curvature kappa and signed length from pose (excluded)."""
-    s = length * np.arange(1, n + 1) / n
-    x, y, th = pose
-    if abs(kappa) < 1e-12:
-        return np.stack([x + s * math.cos(th), y + s * math.sin(th), np.full(n, th)], axis=1)
-    nth = th + kappa * s
-    return np.stack(
-        [x + (np.sin(nth) - math.sin(th)) / kappa, y - (np.cos(nth) - math.cos(th)) / kappa, nth], axis=1
-    )
 
 
 class HybridAStar:
@@ -312,7 +300,11 @@ class HybridAStar:
         return np.array(rows), np.array(counts, dtype=np.int64)
 
     def plan(self, start: np.ndarray, goal: np.ndarray, deadline_s: float | None = None) -> tuple[BasePath | None, str]:
-        """A base path start->goal (poses (x, y, theta), theta unwrapped), or (None, reason)."""
+        """A base path start->goal (poses (x, y, theta), theta unwrapped), or (None, reason).
+
+        The search is bounded by `HybridAStarConfig.max_expansions` (it runs
+        compiled, without a clock); `deadline_s` is accepted for symmetry.
+        """
         c = self.config
         cm = self.costmap
         start = np.asarray(start, float)

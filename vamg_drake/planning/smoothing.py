@@ -96,8 +96,7 @@ def smooth_if_free(
     smooth = bspline_smooth(path, samples)
     if smooth.shape[0] == path.shape[0] and np.allclose(smooth, path):
         return path
-    lo = layout.Q_LOWER[: path.shape[1]] if path.shape[1] == layout.NQ else None
-    if lo is not None and not np.all(layout.within_limits(smooth)):
+    if path.shape[1] == layout.NQ and not np.all(layout.within_limits(smooth)):
         return path
     return smooth if path_free(smooth) else path
 

@@ -259,12 +259,11 @@ class WholeBodyPlanner:
                 timings["refine"] += 1e3 * (time.perf_counter() - tr)
                 timings["total"] = 1e3 * (time.perf_counter() - t0)
                 return PlanResult(True, FailureReason.NONE, traj, timings, attempt + 1, "")
-            if reason == FailureReason.NO_BASE_PATH and "exhausted" in message:
+            if reason == FailureReason.NO_BASE_PATH and ("exhausted" in message or "unreachable" in message):
                 break  # deterministic: more attempts cannot help
         return fail(reason, message, attempt + 1)
 
     def _attempt(self, qs, qg, rng, deadline, timings):
-        cfg = self.config
         checker = self.checker
 
         def check_deadline():

@@ -1,0 +1,71 @@
+"""Hybrid A*, RRT-Connect and smoothing on plain arrays."""
+
+import numpy as np
+import pytest
+
+from vamg_drake.planning.hybrid_astar import Costmap2D, HybridAStar, HybridAStarConfig
+from vamg_drake.planning.rrt_connect import rrt_connect
+from vamg_drake.planning.smoothing import bspline_smooth, shortcut, time_parametrize
+from vamg_drake.robot import layout
+
+
+def _wall_costmap(h=0.05):
+    """A 6 x 4 m map with a wall at x = 3 from y = -2 to y = 1 (gap above)."""
+    from scipy import ndimage
+
+    xs = -1.0 + h * np.arange(int(6.0 / h))
+    ys = -2.0 + h * np.arange(int(4.0 / h))
+    occ = (np.abs(xs[:, None] - 2.0) < 0.1) & (ys[None, :] < 1.0)
+    dist = ndimage.distance_transform_edt(~occ, sampling=h).astype(np.float32)
+    return Costmap2D(dist, np.array([xs[0], ys[0]]), h, np.sqrt(2) * h)
+
+
+def test_hybrid_astar_goes_around_the_wall():
+    cm = _wall_costmap()
+    planner = HybridAStar(cm, 0.3, HybridAStarConfig(turning_radius=0.4))
+    start, goal = np.array([0.5, -1.0, 0.0]), np.array([3.5, -1.0, 0.0])
+    path, why = planner.plan(start, goal)
+    assert path is not None, why
+    poses = path.poses
+    np.testing.assert_allclose(poses[0], start)
+    np.testing.assert_allclose(poses[-1, :2], goal[:2], atol=1e-6)
+    assert planner.poses_free(poses)
+    assert poses[:, 1].max() > 1.0 + 0.3  # passes through the gap
+    assert np.max(np.hypot(*np.diff(poses[:, :2], axis=0).T)) <= planner.config.check_step + 1e-9
+
+
+def test_hybrid_astar_reports_an_enclosed_goal():
+    cm = _wall_costmap()
+    planner = HybridAStar(cm, 1.2, HybridAStarConfig())  # too wide for the gap
+    path, why = planner.plan(np.array([0.5, -1.0, 0.0]), np.array([3.5, -1.0, 0.0]))
+    assert path is None and "no base path" in why
+
+
+def test_rrt_connect_is_generic_and_deterministic():
+    def motion_free(a, b):
+        s = np.linspace(0.0, 1.0, 50)[:, None]
+        p = a + s * (b - a)
+        return not np.any((np.abs(p[:, 0]) < 0.1) & (p[:, 1] < 0.7))  # a wall with a gap at the top
+
+    lo, hi = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
+    a, b = np.array([-0.8, -0.8]), np.array([0.8, -0.8])
+    p1, _ = rrt_connect(a, b, motion_free, lo, hi, np.random.default_rng(3))
+    p2, _ = rrt_connect(a, b, motion_free, lo, hi, np.random.default_rng(3))
+    assert p1 is not None
+    np.testing.assert_array_equal(p1, p2)
+    np.testing.assert_allclose(p1[0], a)
+    np.testing.assert_allclose(p1[-1], b)
+    assert all(motion_free(p1[i], p1[i + 1]) for i in range(len(p1) - 1))
+    short = shortcut(p1, motion_free, np.random.default_rng(0), 50)
+    assert all(motion_free(short[i], short[i + 1]) for i in range(len(short) - 1))
+    length = lambda p: np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1))  # noqa: E731
+    assert length(short) <= length(p1) + 1e-9
+
+
+def test_bspline_keeps_ends_and_time_parametrization_respects_limits():
+    path = np.array([layout.stow_configuration(x, 0.2 * x * x, 0.3 * x) for x in np.linspace(0, 2, 6)])
+    smooth = bspline_smooth(path, 40)
+    np.testing.assert_allclose(smooth[[0, -1]], path[[0, -1]])
+    traj = time_parametrize(smooth)
+    assert traj.max_rate_ratio() == pytest.approx(1.0)
+    assert traj.duration > 0
