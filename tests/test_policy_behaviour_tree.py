@@ -66,7 +66,7 @@ def test_fallback_order_grasp_pregrasp_observe_fail() -> None:
     bt, s = _make([False], [False], [True])
     cmd = bt.step(_inputs())
     assert cmd.phase == Phase.OBSERVE and (s.grasp.calls, s.pregrasp.calls, s.observe.calls) == (1, 1, 1)
-    assert "Observe" in bt.tree_status() and bt.stage_failures["pregrasp"][0] == "pregrasp failed #1"
+    assert "Observe" in bt.tree_status() and bt.stage_failures["pre_grasp"][0] == "pregrasp failed #1"
 
     bt, s = _make([False], [False], [False])
     cmd = bt.step(_inputs())
@@ -127,7 +127,7 @@ def test_budgets_prevent_endless_cycling() -> None:
         if cmd.phase == Phase.FAILED:
             break
     assert cmd.phase == Phase.FAILED
-    assert bt.goals_issued == {"grasp": 0, "pregrasp": 2, "observe": 1}
+    assert bt.goals_issued == {"grasp": 0, "pre_grasp": 2, "observe": 1}
 
 
 def test_perception_category_when_no_grasp_candidates() -> None:

@@ -137,7 +137,7 @@ def test_target_outside_the_room_fails_with_reachability(pipeline, scene) -> Non
     cmd = bt.step(PolicyInputs(0.0, layout.stow_configuration(0.0, 0.0, 0.0), points, target))
     assert cmd.phase == Phase.FAILED
     assert cmd.failure in (FailureCategory.REACHABILITY, FailureCategory.PERCEPTION, FailureCategory.SUBGOAL)
-    assert "navigable" in bt.stage_failures["pregrasp"][0]
+    assert "navigable" in bt.stage_failures["pre_grasp"][0]
 
 
 def test_target_inside_furniture_fails_with_perception(pipeline) -> None:

@@ -68,7 +68,7 @@ def test_policy_system_ports_and_fallback() -> None:
     ctx = policy.GetMyContextFromRoot(sim.get_context())
     goal = policy.GetOutputPort("goal").Eval(ctx)
     assert goal.phase == Phase.PREGRASP and goal.motion == "plan"
-    assert policy.GetOutputPort("phase").Eval(ctx) == "pregrasp"
+    assert policy.GetOutputPort("phase").Eval(ctx) == "pre_grasp"
     np.testing.assert_allclose(goal.q_goal[0], Q0[0] + 1.0)
     assert policy.GetOutputPort("gripper_command").Eval(ctx)[0] == layout.GRIPPER_MAX_OPENING
     assert log[0] == ("grasp", 2, (1.0, 0.0, 0.76))
@@ -94,7 +94,7 @@ def test_policy_system_motion_failure_feedback() -> None:
     goal = policy.GetOutputPort("goal").Eval(ctx)
     # Goal 1 (pre-grasp) failed once, handled once: a fresh pre-grasp goal 2.
     assert goal.phase == Phase.PREGRASP and goal.goal_id == 2
-    assert policy.behaviour.motion_failures["pregrasp"] == 1
+    assert policy.behaviour.motion_failures["pre_grasp"] == 1
 
 
 def test_real_subgoal_policy_in_a_diagram() -> None:
@@ -117,3 +117,12 @@ def test_real_subgoal_policy_in_a_diagram() -> None:
     goal = policy.GetOutputPort("goal").Eval(policy.GetMyContextFromRoot(sim.get_context()))
     assert goal.phase == Phase.PREGRASP and goal.motion == "plan", policy.behaviour.tree_status()
     assert np.all(np.isfinite(goal.q_goal)) and np.all(np.isfinite(goal.head))
+
+
+def test_phase_names_match_the_scenario_vocabulary() -> None:
+    from vamg_drake.policy.behaviour_tree import stage_name
+    from vamg_drake.world.scenario import POLICY_PHASES
+
+    names = {stage_name(p) for p in Phase}
+    assert set(POLICY_PHASES) <= names
+    assert stage_name(Phase.GRASP_APPROACH) == "grasp" and stage_name(Phase.PREGRASP) == "pre_grasp"

@@ -46,7 +46,7 @@ class Phase(enum.Enum):
     GRASP_APPROACH = "grasp_approach"  # linear approach to the grasp pose
     GRASP_CLOSE = "grasp_close"
     GRASP_LIFT = "grasp_lift"
-    PREGRASP = "pregrasp"
+    PREGRASP = "pre_grasp"
     OBSERVE = "observe"
     SUCCEEDED = "succeeded"
     FAILED = "failed"
@@ -54,6 +54,13 @@ class Phase(enum.Enum):
 
 TERMINAL = (Phase.SUCCEEDED, Phase.FAILED)
 GRASP_PHASES = (Phase.GRASP_MOVE, Phase.GRASP_APPROACH, Phase.GRASP_CLOSE, Phase.GRASP_LIFT)
+
+
+def stage_name(phase: Phase) -> str:
+    """The coarse phase name other systems key on: "grasp" for every grasp
+    phase, "pre_grasp", "observe" (`vamg_drake.world.scenario.POLICY_PHASES`),
+    else the phase's own value ("idle", "succeeded", "failed")."""
+    return "grasp" if phase in GRASP_PHASES else phase.value
 
 
 class FailureCategory(enum.Enum):
@@ -78,7 +85,7 @@ class MotionEvent(enum.Enum):
 
 class Stage(enum.Enum):
     GRASP = "grasp"
-    PREGRASP = "pregrasp"
+    PREGRASP = "pre_grasp"
     OBSERVE = "observe"
 
 

@@ -14,6 +14,7 @@ from vamg_drake.policy.behaviour_tree import (
     PolicyInputs,
     SubgoalBehaviour,
     SubgoalCommand,
+    stage_name,
 )
 from vamg_drake.policy.kinematic_maps import KinematicMaps
 from vamg_drake.policy.subgoal_pipeline import SubgoalPipeline, SubgoalPipelineConfig
@@ -59,7 +60,7 @@ class SubgoalPolicy(LeafSystem):
         - target_cloud ((N, 3) array p_WS, optional: a dense cloud around the target for grasp candidates)
         output_ports:
         - goal (SubgoalCommand)
-        - phase (str, the Phase value)
+        - phase (str: "grasp" | "pre_grasp" | "observe" | "idle" | "succeeded" | "failed")
         - gripper_command (1-vector: finger gap [m])
 
     The behaviour tree (``behaviour``) lives in the system object, not in the
@@ -95,7 +96,7 @@ class SubgoalPolicy(LeafSystem):
         return self._behaviour
 
     def _calc_phase(self, context, value: AbstractValue) -> None:
-        value.set_value(context.get_abstract_state(self._command_index).get_value().phase.value)
+        value.set_value(stage_name(context.get_abstract_state(self._command_index).get_value().phase))
 
     def _event(self, context, q: np.ndarray, command: SubgoalCommand, state) -> MotionEvent:
         if self._feedback_port.HasValue(context):
