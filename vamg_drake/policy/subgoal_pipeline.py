@@ -41,7 +41,9 @@ from vamg_drake.robot.spheres import SphereModel
 class SubgoalPipelineConfig:
     """Parameters of the real samplers."""
 
-    ranking: GraspRankingConfig = dc.field(default_factory=GraspRankingConfig)
+    #: The grasp configuration is collision-checked too: ``collision_fn`` lets the
+    #: gripper reach into the target's ball.
+    ranking: GraspRankingConfig = dc.field(default_factory=lambda: GraspRankingConfig(check_grasp_collision=True))
     pregrasp: PregraspConfig = dc.field(default_factory=PregraspConfig)
     observe: ObserveConfig = dc.field(default_factory=ObserveConfig)
     #: Distance field resolution of the collision environment [m].
