@@ -128,6 +128,11 @@ def test_tree_falls_back_to_observe_when_the_target_is_out_of_reach(pipeline) ->
     d = np.linalg.norm(cmd.q_goal[:2] - target[:2])
     assert min(pipeline.config.observe.standoff) - 0.01 <= d <= max(pipeline.config.observe.standoff) + 0.01
     np.testing.assert_allclose(cmd.q_goal[layout.ARM], layout.Q_ARM_STOW)
+    visible, _ = pipeline.visibility.check(cmd.q_goal[None], target, points)
+    assert visible[0] and pipeline.collision_fn(points, target, cmd.q_goal)(cmd.q_goal[None])[0]
+    # The nearest valid standoff pose: at least as close to the start as any other valid one.
+    start = np.array([-1.0, 0.0])
+    assert np.linalg.norm(cmd.q_goal[:2] - start) <= np.linalg.norm(target[:2] - start) + 0.1
 
 
 def test_target_outside_the_room_fails_with_reachability(pipeline, scene) -> None:
