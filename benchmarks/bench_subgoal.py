@@ -1,8 +1,9 @@
 """Speed and completeness of the subgoal samplers.
 
 Workload (seeded): ``--problems`` table-top scenes (a walled 6 m room, a table
-of random size, height and position, a can at a random spot on it, the robot
-stowed at a random free start >= 1.5 m away). Per problem:
+of random size, height and position, a can at a random spot on it, up to three
+clutter boxes on the table near the can and up to three pieces of furniture,
+the robot stowed at a random free start >= 1.5 m away). Per problem:
 
 * pregrasp: `PregraspSampler.sample` with the paper's budget (20 bases x 128),
   first valid sample returned (the collision environment is built beforehand
@@ -42,17 +43,34 @@ REFERENCE_BUDGET = 8192
 
 
 def make_problem(rng: np.random.Generator):
-    """A random table-top scene: (points, target, q_start)."""
+    """A random cluttered table-top scene: (points, target, q_start)."""
     half = 3.0
     size = (rng.uniform(0.5, 0.9), rng.uniform(0.6, 1.4))
     center = rng.uniform(-half + 1.0, half - 1.0, 2)
     height = rng.uniform(0.45, 0.9)
     offset = (rng.uniform(-0.5, 0.5) * (size[0] - 0.1), rng.uniform(-0.5, 0.5) * (size[1] - 0.1))
     points, target = synthetic_clouds.tabletop_scene(tuple(center), size, height, offset, room_half_size=half)
+    parts = [points]
+    # Clutter on the table near the target (not on it).
+    for _ in range(rng.integers(0, 4)):
+        while True:
+            xy = target[:2] + rng.uniform(-0.3, 0.3, 2)
+            if np.linalg.norm(xy - target[:2]) > 0.12 and np.all(np.abs(xy - center) < np.array(size) / 2 - 0.04):
+                break
+        h = rng.uniform(0.05, 0.3)
+        parts.append(synthetic_clouds.box_surface_cloud([*(xy - 0.04), height], [*(xy + 0.04), height + h], 0.02))
+    # Furniture around the table.
+    for _ in range(rng.integers(0, 4)):
+        lo = rng.uniform(-half, half - 0.6, 2)
+        hi = lo + rng.uniform(0.3, 0.8, 2)
+        if np.all(hi > center - np.array(size) / 2 - 0.3) and np.all(lo < center + np.array(size) / 2 + 0.3):
+            continue
+        parts.append(synthetic_clouds.box_surface_cloud([*lo, 0.0], [*hi, rng.uniform(0.4, 1.2)]))
+    points = np.concatenate(parts)
     while True:
         start = rng.uniform(-half + 0.5, half - 0.5, 2)
-        in_table = np.all(np.abs(start - center) < np.array(size) / 2 + 0.5)
-        if not in_table and np.linalg.norm(start - target[:2]) >= 1.5:
+        clear = np.min(np.linalg.norm(points[:, :2] - start, axis=1)) > 0.45
+        if clear and np.linalg.norm(start - target[:2]) >= 1.5:
             break
     return points, target, layout.stow_configuration(start[0], start[1], rng.uniform(-np.pi, np.pi))
 
