@@ -178,3 +178,20 @@ def test_map_resolution_clouds(voxel: float) -> None:
         assert len(AntipodalGraspSampler().propose(cloud, obj.mean(axis=0))) > 0, (name, voxel)
     wall = voxel_downsample(clouds.wall_patch_cloud(center=(2.0, 0.0, 1.0), normal=(-1, 0, 0), noise=0.002), voxel)
     assert len(AntipodalGraspSampler().propose(wall, np.array([2.0, 0.0, 1.0]))) == 0
+
+
+def test_approach_interpolants_are_checked() -> None:
+    t = np.array([[0.5, 0.0, 0.8], [0.6, 0.1, 0.8]])
+    cands = GraspCandidates(_poses(t, np.zeros(2)), np.array([0.9, 0.8]), np.full(2, 0.05))
+
+    def ik(X_WG: np.ndarray, q_seed: np.ndarray):
+        q = np.zeros((len(X_WG), 11))
+        q[:, 4:7] = X_WG[:, :3, 3]
+        return q, np.ones(len(X_WG), bool)
+
+    def blocked_mid_approach(q: np.ndarray) -> np.ndarray:
+        return ~((q[:, 4] > 0.46) & (q[:, 4] < 0.49))  # between candidate 0's pre-grasp and grasp
+
+    args = (np.zeros(11), np.eye(4), np.zeros(3), ik, blocked_mid_approach, None)
+    assert select_grasp_goal(cands, *args, GraspRankingConfig()).candidate_index == 0
+    assert select_grasp_goal(cands, *args, GraspRankingConfig(check_grasp_collision=True)).candidate_index == 1

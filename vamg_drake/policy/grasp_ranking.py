@@ -16,6 +16,7 @@ from typing import Callable
 import numpy as np
 
 from vamg_drake.policy.grasp_candidates import GraspCandidates
+from vamg_drake.robot import layout
 
 #: Batched IK with base and torso fixed at the seed's:
 #: (X_WG (K,4,4), q_seed (11,) or (K,11)) -> (q (K,11), ok (K,)).
@@ -37,9 +38,11 @@ class GraspRankingConfig:
     proximity_weight: float = 0.01
     #: Pre-grasp offset along -x of G [m].
     pregrasp_offset: float = 0.05
-    #: Check the grasp configuration itself for collision (the fingers touch the
-    #: target, so the map passed to ``is_free`` must exclude the target's points).
+    #: Check the grasp configuration itself, and ``approach_checks`` joint-space
+    #: interpolants of the approach from the pre-grasp, for collision (the fingers
+    #: touch the target, so ``is_free`` must let the gripper near the target).
     check_grasp_collision: bool = False
+    approach_checks: int = 3
 
     def __post_init__(self) -> None:
         if self.n_diverse < 1:
@@ -189,6 +192,12 @@ def select_grasp_goal(
     free[valid] = np.asarray(is_free(q_pre[valid]), dtype=bool)
     if config.check_grasp_collision:
         free[valid] &= np.asarray(is_free(q_grasp[valid]), dtype=bool)
+        for s in np.arange(1, config.approach_checks + 1) / (config.approach_checks + 1):
+            check = valid & free
+            if not check.any():
+                break
+            q_mid = q_pre[check] + s * layout.wrap_configuration(q_grasp[check] - q_pre[check])
+            free[check] &= np.asarray(is_free(q_mid), dtype=bool)
     winners = np.flatnonzero(valid & free)
     if winners.size == 0:
         return fail("every IK-valid ranked grasp is in collision with the map", n_reachable, order.size)
