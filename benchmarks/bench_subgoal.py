@@ -15,8 +15,10 @@ the robot stowed at a random free start >= 1.5 m away). Per problem:
   problems solved with N samples (``--seeds`` seeds each) is reported
   (paper: ~95% near 2,000 samples).
 
-Reference in the same run: Drake `InverseKinematics` (SNOPT) against the
-batched Numba `FastIk` on the same arm-only targets.
+References in the same run: Drake `InverseKinematics` (SNOPT) against the
+batched Numba `FastIk` on the same arm-only targets; and a map-free pre-grasp
+sampler (no capability filter, uniform torso height, uniform base cells) on
+the same solvable problems and budget (``ablation_*``).
 
 Usage: python benchmarks/bench_subgoal.py [--json] [--problems N] [--seeds S]
 """
@@ -24,6 +26,7 @@ Usage: python benchmarks/bench_subgoal.py [--json] [--problems N] [--seeds S]
 from __future__ import annotations
 
 import argparse
+import dataclasses as dc
 import json
 import time
 
@@ -129,6 +132,20 @@ def main() -> None:
 
     curve = {str(n): round(float(np.mean(v)), 3) if v else None for n, v in solved_at.items()}
 
+    # Ablation: the same sampler without the kinematic maps and the cost weighting.
+    plain = PregraspSampler(maps, pipeline.ik, pipeline.visibility,
+                            dc.replace(sampler.config, use_capability=False, use_torso_map=False, weight_bases=False))
+    ablation_ok, ablation_ms = [], []
+    for i, (pts, target, q0) in enumerate(problems):
+        if not solvable[i]:
+            continue
+        is_free = pipeline.collision_fn(pts, target, q0)
+        for s in range(args.seeds):
+            t = time.perf_counter()
+            res = plain.sample(pts, target, q0, is_free, np.random.default_rng(5000 + 31 * i + s), 2560)
+            ablation_ms.append(1e3 * (time.perf_counter() - t))
+            ablation_ok.append(res.success)
+
     # IK reference: Drake InverseKinematics vs FastIk on the same arm-only targets.
     krng = np.random.default_rng(7)
     q = krng.uniform(layout.SAMPLE_LOWER, layout.SAMPLE_UPPER, (args.ik_reference, layout.NQ))
@@ -156,6 +173,8 @@ def main() -> None:
         "solvable_problems": int(np.sum(solvable)),
         "completeness_curve": curve,
         "completeness_at_2560": curve["2560"],
+        "ablation_no_maps_completeness_at_2560": round(float(np.mean(ablation_ok)), 3) if ablation_ok else None,
+        "ablation_no_maps_ms_median": round(float(np.median(ablation_ms)), 1) if ablation_ms else None,
         "ik_fast_us_per_solve": round(fast_us, 1),
         "ik_fast_success": round(float(np.mean(ok_fast)), 3),
         "ik_drake_ms_per_solve": round(drake_ms, 2),

@@ -161,17 +161,19 @@ class BaseCostmap:
         radius: tuple[float, float],
         min_clearance: float,
         rng: np.random.Generator,
+        weighted: bool = True,
     ) -> np.ndarray:
         """``p_geo``: n base poses (n, 3) [x, y, yaw facing the target] (fewer if none fit).
 
         Cells must be navigable, at least ``min_clearance`` from obstacles and at a
         horizontal distance in ``radius`` from the target; they are drawn with
-        probability proportional to (1 - c)^2, with a uniform jitter inside the cell.
+        probability proportional to (1 - c)^2 (uniformly when not ``weighted``),
+        with a uniform jitter inside the cell.
         """
         centers = self.cell_centers()
         r = np.linalg.norm(centers - np.asarray(p_WT, float)[:2], axis=-1)
         ok = self.navigable & (self.distance >= min_clearance) & (r >= radius[0]) & (r <= radius[1])
-        weights = np.where(ok, (1.0 - self.cost) ** 2, 0.0).ravel()
+        weights = np.where(ok, (1.0 - self.cost) ** 2 if weighted else 1.0, 0.0).ravel()
         total = weights.sum()
         if not total > 0:
             return np.zeros((0, 3))
@@ -194,6 +196,10 @@ class PregraspConfig:
     base_radius: list[float] = dc.field(default_factory=lambda: [0.35, 1.05])
     #: Use the capability map to filter end-effector samples.
     use_capability: bool = True
+    #: Use the torso-height map (else a uniform torso height): an ablation switch.
+    use_torso_map: bool = True
+    #: Weight base cells by (1 - c)^2 (else uniform over the eligible cells): an ablation switch.
+    weight_bases: bool = True
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -307,7 +313,7 @@ class PregraspSampler:
                 p_WM, cfg.costmap, include_xy=np.stack([p_WT[:2], q_current[:2]]), robot_xy=q_current[:2]
             )
         n_bases = int(np.ceil(budget / cfg.samples_per_base))
-        bases = costmap.sample_bases(p_WT, n_bases, cfg.base_radius, cfg.costmap.base_clearance, rng)
+        bases = costmap.sample_bases(p_WT, n_bases, cfg.base_radius, cfg.costmap.base_clearance, rng, cfg.weight_bases)
         if bases.shape[0] == 0:
             return fail("no navigable base cell within manipulation radius of the target (costmap)")
         seed_arm = q_current[layout.ARM]
@@ -330,8 +336,11 @@ class PregraspSampler:
             if not keep.any():
                 continue
             # p_torso: the best torso for the target (per sample: its own EE bin when the target's is empty).
-            h = self.maps.torso_height.best_torso(p_BT[None])[0]
-            torso = np.full(n, h) if np.isfinite(h) else self.maps.torso_height.best_torso(X_BG[:, :3, 3])
+            if cfg.use_torso_map:
+                h = self.maps.torso_height.best_torso(p_BT[None])[0]
+                torso = np.full(n, h) if np.isfinite(h) else self.maps.torso_height.best_torso(X_BG[:, :3, 3])
+            else:
+                torso = np.full(n, np.nan)
             missing = ~np.isfinite(torso)
             torso[missing] = rng.uniform(layout.Q_LOWER[layout.TORSO], layout.Q_UPPER[layout.TORSO], missing.sum())
             seeds = np.tile(q_base, (n, 1))
