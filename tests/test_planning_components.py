@@ -69,3 +69,15 @@ def test_bspline_keeps_ends_and_time_parametrization_respects_limits():
     traj = time_parametrize(smooth)
     assert traj.max_rate_ratio() == pytest.approx(1.0)
     assert traj.duration > 0
+
+
+def test_configs_load_from_yaml():
+    from pydrake.common.yaml import yaml_load_typed
+
+    from vamg_drake.systems.planner_system import PlannerSystemConfig
+
+    config = yaml_load_typed(schema=PlannerSystemConfig,
+                             data="period: 0.2\nplanner: {seed: 4, attempt_budget_s: 0.1, fold_fractions: [0.5]}")
+    assert config.period == 0.2
+    assert config.planner.seed == 4 and config.planner.fold_fractions == [0.5]
+    assert config.planner.max_attempts == 3

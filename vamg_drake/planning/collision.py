@@ -28,8 +28,6 @@ inflated by half that spacing, so the straight-line motion between two free
 checked states is free as well.
 """
 
-from __future__ import annotations
-
 import dataclasses
 import functools
 import math
@@ -587,7 +585,7 @@ def _bisection_order(n: int) -> np.ndarray:
     return np.concatenate([np.array(order, dtype=np.int64), rest.astype(np.int64)])
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass
 class CollisionCheckerConfig:
     """Collision-check parameters.
 
@@ -623,9 +621,10 @@ class CollisionChecker:
     """
 
     def __init__(self, tree, link_index, center_L, radius, self_collision_pairs,
-                 env: CollisionEnvironment, config: CollisionCheckerConfig = CollisionCheckerConfig(),
+                 env: CollisionEnvironment, config: CollisionCheckerConfig | None = None,
                  body_primitives=()):
         self.tree = tree
+        config = config or CollisionCheckerConfig()
         self.config = config
         self.sph_link = np.ascontiguousarray(link_index, dtype=np.int64)
         self.sph_c = np.ascontiguousarray(center_L, dtype=float)
@@ -643,7 +642,7 @@ class CollisionChecker:
         self.set_environment(env)
 
     @staticmethod
-    def for_fetch(env: CollisionEnvironment, config: CollisionCheckerConfig = CollisionCheckerConfig()) -> "CollisionChecker":
+    def for_fetch(env: CollisionEnvironment, config: CollisionCheckerConfig | None = None) -> "CollisionChecker":
         """The checker for the authored Fetch model and its sphere model."""
         from vamg_drake.robot.kinematics import FetchKinematics
         from vamg_drake.robot.spheres import SphereModel

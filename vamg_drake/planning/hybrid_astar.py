@@ -11,8 +11,6 @@ expansions a Reeds-Shepp curve to the goal is tried (analytic expansion).
 Costs are travel times at the base's speed limits.
 """
 
-from __future__ import annotations
-
 import dataclasses
 import heapq
 import math
@@ -49,7 +47,7 @@ class Costmap2D:
         return i, j
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass
 class HybridAStarConfig:
     """Search parameters.
 
@@ -256,9 +254,9 @@ class HybridAStar:
     """Hybrid A* planner for the base disc on a `Costmap2D`."""
 
     def __init__(self, costmap: Costmap2D, footprint_radius: float,
-                 config: HybridAStarConfig = HybridAStarConfig()):
+                 config: HybridAStarConfig | None = None):
         self.costmap = costmap
-        self.config = config
+        self.config = config or HybridAStarConfig()
         self.radius = float(footprint_radius)
         self.limit = self.radius + costmap.margin
         self.v = layout.TRACKER_BASE_V

@@ -5,8 +5,6 @@ checks the straight segment (in batches, see `CollisionChecker.motion_free`)
 and the sampling bounds. Used for the torso + 7-joint arm at a fixed base.
 """
 
-from __future__ import annotations
-
 import dataclasses
 import time
 from typing import Callable
@@ -14,7 +12,7 @@ from typing import Callable
 import numpy as np
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass
 class RRTConnectConfig:
     """Attributes:
         step: maximum extension per step (max-norm over joints) [rad or m].
@@ -62,7 +60,7 @@ def rrt_connect(
     lower: np.ndarray,
     upper: np.ndarray,
     rng: np.random.Generator,
-    config: RRTConnectConfig = RRTConnectConfig(),
+    config: RRTConnectConfig | None = None,
     deadline_s: float | None = None,
     weights: np.ndarray | None = None,
 ) -> tuple[np.ndarray | None, str]:
@@ -76,6 +74,7 @@ def rrt_connect(
         deadline_s: `time.perf_counter()` value after which to give up ("timeout").
         weights: (d,) per-joint distance weights (default ones).
     """
+    config = config or RRTConnectConfig()
     start = np.asarray(start, float)
     goal = np.asarray(goal, float)
     w = np.ones_like(start) if weights is None else np.asarray(weights, float)

@@ -21,8 +21,6 @@ One attempt:
 Budget: `PlannerConfig.attempt_budget_s` per attempt, `max_attempts` attempts.
 """
 
-from __future__ import annotations
-
 import dataclasses
 import math
 import time
@@ -49,7 +47,7 @@ class FailureReason:
     TIMEOUT = "timeout"
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass
 class PlannerConfig:
     """Whole-body planner parameters (loadable with `yaml_load_typed`).
 
@@ -89,10 +87,11 @@ class PlannerConfig:
     bspline_samples: int = 25
     rrt_step: float = 0.6
     rrt_max_iterations: int = 400
-    placement_fractions: tuple[float, ...] = (0.6, 0.8, 1.0)
-    fold_fractions: tuple[float, ...] = (0.3, 0.0)
+    placement_fractions: list[float] = dataclasses.field(default_factory=lambda: [0.6, 0.8, 1.0])
+    fold_fractions: list[float] = dataclasses.field(default_factory=lambda: [0.3, 0.0])
     hybrid_astar_max_expansions: int = 20000
-    travel_torso_arm: tuple[float, ...] = (0.006, 1.432, -1.168, -0.587, -0.66, -1.532, 1.079, -1.958)
+    travel_torso_arm: list[float] = dataclasses.field(
+        default_factory=lambda: [0.006, 1.432, -1.168, -0.587, -0.66, -1.532, 1.079, -1.958])
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -136,7 +135,8 @@ class WholeBodyPlanner:
         config: `PlannerConfig`.
     """
 
-    def __init__(self, checker: CollisionChecker, config: PlannerConfig = PlannerConfig()):
+    def __init__(self, checker: CollisionChecker, config: PlannerConfig | None = None):
+        config = config or PlannerConfig()
         self.config = config
         self.checker = checker
         self._hybrid: HybridAStar | None = None
@@ -149,7 +149,8 @@ class WholeBodyPlanner:
         self.robot_top = float(np.max(c[:, 2] + r))
 
     @staticmethod
-    def for_fetch(env: CollisionEnvironment, config: PlannerConfig = PlannerConfig()) -> "WholeBodyPlanner":
+    def for_fetch(env: CollisionEnvironment, config: PlannerConfig | None = None) -> "WholeBodyPlanner":
+        config = config or PlannerConfig()
         from vamg_drake.planning.collision import CollisionCheckerConfig
 
         cc = CollisionChecker.for_fetch(

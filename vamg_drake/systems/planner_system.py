@@ -1,8 +1,6 @@
 """WholeBodyPlanner system: the LeafSystem adapter over
 `vamg_drake.planning.whole_body_planner.WholeBodyPlanner`."""
 
-from __future__ import annotations
-
 import dataclasses as dc
 import logging
 
