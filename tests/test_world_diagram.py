@@ -126,3 +126,14 @@ def test_missing_rendering_library_names_the_package(monkeypatch):
 def test_unknown_policy_is_a_clear_error():
     with pytest.raises(ValueError, match="unknown policy 'nope'"):
         build_diagram(box_room_scenario(), DiagramConfig(policy="nope"))
+
+
+def test_diagram_config_loads_from_yaml():
+    from pydrake.common.yaml import yaml_load_typed
+
+    config = yaml_load_typed(
+        schema=DiagramConfig,
+        data="world: {time_step: 0.005, camera: {width: 640, height: 480}}\nscripted: {speed: 0.3}\nmonitor: {hold_time: 1.0}",
+    )
+    assert config.world.camera.width == 640 and config.world.time_step == 0.005
+    assert config.scripted.speed == 0.3 and config.monitor.hold_time == 1.0

@@ -12,7 +12,6 @@ The policy is chosen by `DiagramConfig.policy`; "scripted" drives a waypoint
 list and sweeps the head (`ScriptedDriver`).
 """
 
-from __future__ import annotations
 
 import dataclasses as dc
 

@@ -6,7 +6,6 @@ The camera frame ``C`` is the URDF's ``head_camera_depth_optical_frame``:
 +z along the optical axis, +x right, +y down in the image.
 """
 
-from __future__ import annotations
 
 import dataclasses as dc
 import math

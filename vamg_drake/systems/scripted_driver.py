@@ -6,7 +6,6 @@ then drives; the head pans back and forth; the arm holds still; the gripper
 stays open.
 """
 
-from __future__ import annotations
 
 import dataclasses as dc
 import math

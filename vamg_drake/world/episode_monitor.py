@@ -5,7 +5,6 @@ the robot's contacts and the target's height, and decides the outcome.
 `vamg_drake.systems.episode_monitor_system.EpisodeMonitor` is its LeafSystem.
 """
 
-from __future__ import annotations
 
 import dataclasses as dc
 

@@ -10,7 +10,6 @@ The base is three single-DoF joints (x, y, yaw) rather than a `PlanarJoint`:
 Drake's PD-controlled actuators need single-DoF joints.
 """
 
-from __future__ import annotations
 
 import dataclasses as dc
 import logging
