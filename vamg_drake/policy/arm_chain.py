@@ -108,6 +108,12 @@ def planar_pose(x: float, y: float, theta: float) -> np.ndarray:
 
 
 @numba.njit(cache=True)
+def _chain_scratch(n):
+    """Scratch buffers for `_chain_one`: R (3,3), p (3,), tmp (3,3), origins and axes (n,3)."""
+    return np.empty((3, 3)), np.empty(3), np.empty((3, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+
+
+@numba.njit(cache=True)
 def _chain_one(X_PJ, joint_type, axis, column, q, X_out, J_out, with_jacobian, R, p, origins, axes, tmp):
     """FK (and Jacobian) of one configuration; R (3,3), p (3,), origins/axes (n,3), tmp (3,3) are scratch."""
     n = X_PJ.shape[0]
@@ -196,11 +202,7 @@ def chain_fk_jacobian(X_PJ, joint_type, axis, column, q_chain, X_out, J_out, wit
     n = X_PJ.shape[0]
     block = 4096
     for k in numba.prange((B + block - 1) // block):
-        R = np.empty((3, 3))
-        p = np.empty(3)
-        tmp = np.empty((3, 3))
-        origins = np.zeros((n, 3))
-        axes = np.zeros((n, 3))
+        R, p, tmp, origins, axes = _chain_scratch(n)
         for b in range(k * block, min(B, (k + 1) * block)):
             _chain_one(X_PJ, joint_type, axis, column, q_chain[b], X_out[b], J_out[b], with_jacobian, R, p, origins, axes, tmp)
 

@@ -20,7 +20,7 @@ import math
 import numba
 import numpy as np
 
-from vamg_drake.policy.arm_chain import CHAIN_LOWER, CHAIN_UPPER, N_CHAIN, ArmChain, _chain_one, base_poses
+from vamg_drake.policy.arm_chain import CHAIN_LOWER, CHAIN_UPPER, N_CHAIN, ArmChain, _chain_one, _chain_scratch, base_poses
 from vamg_drake.robot import layout
 
 
@@ -49,11 +49,7 @@ class IkConfig:
 def _dls_one(X_PJ, joint_type, axis, column, target, q0, active, lower, upper, pos_tol, ang_tol,
              max_iter, damping, max_step, q_out):
     n = X_PJ.shape[0]
-    R = np.empty((3, 3))
-    p = np.empty(3)
-    tmp = np.empty((3, 3))
-    origins = np.zeros((n, 3))
-    axes = np.zeros((n, 3))
+    R, p, tmp, origins, axes = _chain_scratch(n)
     X = np.empty((4, 4))
     J = np.empty((6, N_CHAIN))
     e = np.empty(6)

@@ -45,6 +45,7 @@ from vamg_drake.policy.arm_chain import (
     N_CHAIN,
     ArmChain,
     _chain_one,
+    _chain_scratch,
 )
 from vamg_drake.robot import layout
 from vamg_drake.robot.kinematics import model_hash
@@ -153,11 +154,7 @@ def _reach_batch(X_PJ, joint_type, axis, column, q, lower, resolution, shape, ke
     B = q.shape[0]
     block = 4096
     for k in numba.prange((B + block - 1) // block):
-        R = np.empty((3, 3))
-        p = np.empty(3)
-        tmp = np.empty((3, 3))
-        origins = np.zeros((n, 3))
-        axes = np.zeros((n, 3))
+        R, p, tmp, origins, axes = _chain_scratch(n)
         X = np.empty((4, 4))
         J = np.empty((6, N_CHAIN))
         for b in range(k * block, min(B, (k + 1) * block)):
@@ -178,11 +175,7 @@ def _torso_batch(X_PJ, joint_type, axis, column, q, lower, resolution, shape, to
     B = q.shape[0]
     block = 4096
     for k in numba.prange((B + block - 1) // block):
-        R = np.empty((3, 3))
-        p = np.empty(3)
-        tmp = np.empty((3, 3))
-        origins = np.zeros((n, 3))
-        axes = np.zeros((n, 3))
+        R, p, tmp, origins, axes = _chain_scratch(n)
         X = np.empty((4, 4))
         J = np.empty((6, N_CHAIN))
         for b in range(k * block, min(B, (k + 1) * block)):
