@@ -1,8 +1,18 @@
-"""WholeBodyPlanner system: the LeafSystem adapter over
-`vamg_drake.planning.whole_body_planner.WholeBodyPlanner`."""
+"""WholeBodyPlanner system: the motion layer between the subgoal policy and the tracker.
+
+A LeafSystem adapter over `vamg_drake.planning.whole_body_planner.WholeBodyPlanner`
+plus the small motion bookkeeping of the paper's receding-horizon loop
+(appendix "Arm Motion with Replanning"): plan on a new goal, re-check the rest
+of the trajectory on every new map, stop and replan when it is invalidated (at
+most ``max_replans`` times per goal), and report REACHED / FAILED /
+INVALIDATED to the policy. The pure decision logic lives in `MotionSupervisor`
+(plain Python, testable without Drake).
+"""
 
 import dataclasses as dc
 import logging
+import time
+import traceback
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -11,9 +21,16 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 from vamg_drake.planning.collision import CollisionEnvironment
 from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig, WholeBodyPlanner
+from vamg_drake.policy.behaviour_tree import MotionEvent, SubgoalCommand
 from vamg_drake.robot import layout
+from vamg_drake.systems.timing import ModuleTimings
 
 _log = logging.getLogger(__name__)
+
+#: `PlannedTrajectory.reason` when the planner raised (the traceback is logged).
+EXCEPTION_REASON = "exception"
+#: `PlannedTrajectory.reason` when a goal was invalidated more than `max_replans` times.
+REPLAN_LIMIT_REASON = "replan_limit"
 
 
 @dc.dataclass(frozen=True, eq=False)
@@ -22,11 +39,15 @@ class PlannedTrajectory:
 
     Attributes:
         goal_id: the policy goal this trajectory serves (-1: none yet).
-        trajectory: timed whole-body waypoints on the simulation clock, or None.
+        trajectory: timed whole-body waypoints on the simulation clock, or None
+            (hold still: no goal, a "hold" goal, or a failed plan).
         success: whether the last planning request for goal_id succeeded.
-        reason: a `FailureReason` value when it did not.
+        reason: a `FailureReason` value, `EXCEPTION_REASON` or `REPLAN_LIMIT_REASON` when it did not.
         map_revision: the map revision it was planned or last validated on.
         plan_ms: wall time of the last planning call [ms].
+        replans: how often this goal was replanned after an invalidation.
+        motion: the goal's motion kind ("plan", "linear", "hold").
+        error: the exception text when the planner raised.
     """
 
     goal_id: int = -1
@@ -35,6 +56,9 @@ class PlannedTrajectory:
     reason: str = ""
     map_revision: int = -1
     plan_ms: float = 0.0
+    replans: int = 0
+    motion: str = "hold"
+    error: str = ""
 
 
 @dc.dataclass
@@ -44,14 +68,146 @@ class PlannerSystemConfig:
     Attributes:
         period: how often the system looks for work (new goal, new map) [s].
         floor_z: map points below this height are the floor, not obstacles [m].
-        reach_tolerance: q within this of the goal (every joint) reports REACHED.
+        target_clearance: map points this close to the target are left out of
+            the planner's environment (the gripper is meant to reach them; the
+            policy has checked the goal itself against them) [m].
+        reach_tolerance: every joint of q within this of the goal reports REACHED.
+        settle_time: after the trajectory's end, how long the robot may take to
+            settle within `reach_tolerance` [s] ...
+        settle_tolerance: ... after which a q within this looser tolerance still
+            counts as REACHED; farther away the motion FAILED.
+        max_replans: replans after invalidations per goal (the appendix's K).
+        replan_period: > 0 replans towards the goal at this period whether or not
+            the trajectory was invalidated (the closed-loop-replanning baseline) [s].
+        linear_speed_fraction: linear motions (approach, lift) move at this
+            fraction of the joint velocity limits.
         planner: the planner's `PlannerConfig`.
     """
 
     period: float = 0.1
     floor_z: float = 0.03
+    target_clearance: float = 0.10
     reach_tolerance: float = 0.03
+    settle_time: float = 4.0
+    settle_tolerance: float = 0.08
+    max_replans: int = 8
+    replan_period: float = 0.0
+    linear_speed_fraction: float = 0.25
     planner: PlannerConfig = dc.field(default_factory=PlannerConfig)
+
+
+def linear_trajectory(q_from: np.ndarray, q_to: np.ndarray, t0: float, speed_fraction: float,
+                      step: float = 0.02) -> TimedTrajectory:
+    """A straight joint-space motion from q_from to q_to at a fraction of the velocity limits."""
+    q_to = q_from + layout.wrap_configuration(np.asarray(q_to, float) - q_from)
+    rate = np.asarray(layout.V_MAX, float) * speed_fraction
+    duration = max(float(np.max(np.abs(q_to - q_from) / rate)), 0.2)
+    n = max(2, int(np.ceil(duration / step)) + 1)
+    s = np.linspace(0.0, 1.0, n)
+    return TimedTrajectory(t0 + s * duration, q_from[None] + s[:, None] * (q_to - q_from)[None])
+
+
+def nearest_waypoint(trajectory: TimedTrajectory, q: np.ndarray) -> int:
+    """Index of the waypoint nearest to q (base position, heading and joints weighted alike)."""
+    d = layout.wrap_configuration(trajectory.q - q[None])
+    return int(np.argmin(np.sum(d * d, axis=1)))
+
+
+def remaining_path(trajectory: TimedTrajectory, q: np.ndarray) -> np.ndarray:
+    """The rest of the path from the robot's q: q itself, then the waypoints after the nearest one."""
+    k = nearest_waypoint(trajectory, q)
+    q0 = trajectory.q[k] + layout.wrap_configuration(q - trajectory.q[k])
+    return np.concatenate([q0[None], trajectory.q[k + 1:]])
+
+
+class MotionSupervisor:
+    """Decides, at each tick, what the motion layer does for the policy's goal.
+
+    Plain Python over a `WholeBodyPlanner`: `tick` takes the goal, q, the
+    environment revision and the time, and returns the new `PlannedTrajectory`
+    and an optional `MotionEvent` for the policy. The caller sets the planner's
+    environment before calling.
+    """
+
+    def __init__(self, planner: WholeBodyPlanner, config: PlannerSystemConfig,
+                 timings: ModuleTimings | None = None) -> None:
+        self.planner = planner
+        self.config = config
+        self.timings = timings
+        self.last_replan_time = -np.inf
+
+    def tick(self, plan: PlannedTrajectory, goal: SubgoalCommand | None, q: np.ndarray, t: float,
+             revision: int) -> tuple[PlannedTrajectory, MotionEvent]:
+        cfg = self.config
+        if goal is None:
+            return plan, MotionEvent.NONE
+        if goal.goal_id != plan.goal_id:
+            return self._start(goal, q, t, revision)
+        if goal.motion == "hold" or plan.trajectory is None:
+            return plan, MotionEvent.NONE
+        error = np.abs(layout.wrap_configuration(q - np.asarray(goal.q_goal, float)))
+        if t >= plan.trajectory.end_time:
+            if np.all(error <= cfg.reach_tolerance):
+                return plan, MotionEvent.REACHED
+            if t >= plan.trajectory.end_time + cfg.settle_time:
+                if np.all(error <= cfg.settle_tolerance):
+                    return plan, MotionEvent.REACHED
+                _log.warning("motion t=%.2f: goal %d not reached %.1f s after the trajectory ended (max error %.3f)",
+                             t, goal.goal_id, cfg.settle_time, float(error.max()))
+                return dc.replace(plan, trajectory=None, success=False, reason=FailureReason.TIMEOUT), MotionEvent.FAILED
+        if goal.motion != "plan":
+            return plan, MotionEvent.NONE
+        periodic = cfg.replan_period > 0 and t - self.last_replan_time >= cfg.replan_period
+        if revision == plan.map_revision and not periodic:
+            return plan, MotionEvent.NONE
+        if not periodic:
+            rest = remaining_path(plan.trajectory, q)
+            if self.planner.trajectory_is_valid(TimedTrajectory(np.arange(len(rest), dtype=float), rest)):
+                return dc.replace(plan, map_revision=revision), MotionEvent.NONE
+        if not periodic:
+            if plan.replans >= cfg.max_replans:
+                _log.warning("motion t=%.2f: goal %d invalidated more than %d times", t, goal.goal_id, cfg.max_replans)
+                return dc.replace(plan, trajectory=None, success=False, reason=REPLAN_LIMIT_REASON), MotionEvent.FAILED
+            _log.info("motion t=%.2f: trajectory invalidated by map %d; replanning", t, revision)
+        new = self._plan(goal, q, t, revision)
+        new = dc.replace(new, replans=plan.replans + (0 if periodic else 1))
+        if periodic:
+            # The baseline keeps executing the old plan when a periodic replan fails.
+            return (new if new.success else dc.replace(plan, map_revision=revision)), MotionEvent.NONE
+        return new, (MotionEvent.INVALIDATED if new.success else MotionEvent.FAILED)
+
+    def _start(self, goal: SubgoalCommand, q: np.ndarray, t: float, revision: int) -> tuple[PlannedTrajectory, MotionEvent]:
+        if goal.motion == "plan":
+            plan = self._plan(goal, q, t, revision)
+            return plan, (MotionEvent.NONE if plan.success else MotionEvent.FAILED)
+        if goal.motion == "linear":
+            try:
+                traj = linear_trajectory(q, np.asarray(goal.q_goal, float), t, self.config.linear_speed_fraction)
+            except ValueError as e:
+                _log.error("motion t=%.2f: bad linear goal %d: %s", t, goal.goal_id, e)
+                return PlannedTrajectory(goal.goal_id, None, False, FailureReason.INVALID_INPUT, revision,
+                                         motion="linear"), MotionEvent.FAILED
+            return PlannedTrajectory(goal.goal_id, traj, True, "", revision, motion="linear"), MotionEvent.NONE
+        return PlannedTrajectory(goal.goal_id, None, True, "", revision, motion=goal.motion), MotionEvent.NONE
+
+    def _plan(self, goal: SubgoalCommand, q: np.ndarray, t: float, revision: int) -> PlannedTrajectory:
+        self.last_replan_time = t
+        t0 = time.perf_counter()
+        try:
+            result = self.planner.plan(q, np.asarray(goal.q_goal, dtype=float))
+        except Exception as e:  # noqa: BLE001 - a planner bug becomes a recorded planning failure
+            _log.error("WholeBodyPlanner t=%.2f: planner raised on goal %d:\n%s", t, goal.goal_id, traceback.format_exc())
+            return PlannedTrajectory(goal.goal_id, None, False, EXCEPTION_REASON, revision,
+                                     1e3 * (time.perf_counter() - t0), motion="plan", error=f"{type(e).__name__}: {e}")
+        if self.timings is not None:
+            self.timings.add("planner", result.timings["total"])
+        if not result.success:
+            _log.warning("WholeBodyPlanner t=%.2f: goal %d failed: %s (%s)", t, goal.goal_id, result.reason,
+                         result.message)
+            return PlannedTrajectory(goal.goal_id, None, False, result.reason or FailureReason.TIMEOUT, revision,
+                                     result.timings["total"], motion="plan")
+        return PlannedTrajectory(goal.goal_id, result.trajectory.shifted(t), True, "", revision,
+                                 result.timings["total"], motion="plan")
 
 
 class PlannerSystem(LeafSystem):
@@ -64,98 +220,91 @@ class PlannerSystem(LeafSystem):
         - goal (SubgoalCommand: goal_id, q_goal, motion, ...)
         - point_map (PointMapSnapshot or None)
         - robot_configuration (11-vector q)
+        - target (3-vector p_WT, optional)
         output_ports:
-        - trajectory (PlannedTrajectory)
+        - trajectory (PlannedTrajectory: the plan and its status)
+        - timed_trajectory (TimedTrajectory or None: what the tracker and the gaze follow)
         - motion_feedback (MotionFeedback for the SubgoalPolicy)
 
-    A goal with ``motion == "plan"`` and a new goal_id triggers planning from
-    the current q. Each new map revision re-checks the rest of the current
-    trajectory; when it is invalidated the system replans from the current q
-    and reports INVALIDATED (or FAILED when replanning fails). A failure is
-    logged and reported with its reason; the system never raises in an episode.
-    The planner core (with its collision environment) lives in the system
-    object: use one Context per system instance.
+    Goals: "plan" runs the whole-body planner from the current q; "linear"
+    (approach, lift) is a straight joint-space motion at
+    `linear_speed_fraction` of the limits; "hold" stops. Every new map
+    revision re-checks the rest of a planned trajectory from the robot's
+    current q; when it is invalidated the system replans (INVALIDATED) or
+    reports FAILED. A planner exception is logged with its traceback and
+    becomes a FAILED motion with reason `EXCEPTION_REASON`; the system never
+    raises in an episode. The planner core (with its collision environment)
+    lives in the system object: use one Context per system instance.
     """
 
-    def __init__(self, config: PlannerSystemConfig | None = None, planner: WholeBodyPlanner | None = None):
+    def __init__(self, config: PlannerSystemConfig | None = None, planner: WholeBodyPlanner | None = None,
+                 timings: ModuleTimings | None = None):
         super().__init__()
-        from vamg_drake.policy.behaviour_tree import MotionEvent
         from vamg_drake.systems.subgoal_policy_system import MotionFeedback
 
-        self._MotionEvent = MotionEvent
         self._MotionFeedback = MotionFeedback
         self._config = config or PlannerSystemConfig()
         self._planner = planner or WholeBodyPlanner.for_fetch(CollisionEnvironment(), self._config.planner)
+        self._supervisor = MotionSupervisor(self._planner, self._config, timings)
         self._goal_port = self.DeclareAbstractInputPort("goal", AbstractValue.Make(None))
         self._map_port = self.DeclareAbstractInputPort("point_map", AbstractValue.Make(None))
         self._q_port = self.DeclareVectorInputPort("robot_configuration", layout.NQ)
+        self._target_port = self.DeclareVectorInputPort("target", 3)
         self._plan_index = self.DeclareAbstractState(AbstractValue.Make(PlannedTrajectory()))
         self._feedback_index = self.DeclareAbstractState(AbstractValue.Make(MotionFeedback()))
         self.DeclareStateOutputPort("trajectory", self._plan_index)
+        self.DeclareAbstractOutputPort(
+            "timed_trajectory", lambda: AbstractValue.Make(None),
+            lambda context, value: value.set_value(context.get_abstract_state(self._plan_index).get_value().trajectory),
+            {self.abstract_state_ticket(self._plan_index)},
+        )
         self.DeclareStateOutputPort("motion_feedback", self._feedback_index)
         self.DeclarePeriodicUnrestrictedUpdateEvent(self._config.period, 0.0, self._update)
-        self._env_revision = None
+        self._env_key = None
 
     @property
     def planner(self) -> WholeBodyPlanner:
         return self._planner
 
-    def _set_map(self, snapshot) -> int:
+    def _set_map(self, snapshot, p_WT: np.ndarray | None) -> int:
         """Rebuilds the collision environment when the map revision changed."""
         revision = -1 if snapshot is None else int(snapshot.revision)
-        if revision != self._env_revision:
+        key = (revision, None if p_WT is None else tuple(np.round(p_WT, 3)))
+        if key != self._env_key:
             if snapshot is None or snapshot.num_points == 0:
                 env = CollisionEnvironment()
             else:
                 p = np.asarray(snapshot.points, dtype=float)
-                p = p[p[:, 2] >= self._config.floor_z]
-                env = CollisionEnvironment.from_points(p, resolution=float(snapshot.voxel_size))
+                keep = p[:, 2] >= self._config.floor_z
+                if p_WT is not None:
+                    keep &= np.linalg.norm(p - p_WT, axis=1) > self._config.target_clearance
+                env = CollisionEnvironment.from_points(p[keep], resolution=float(snapshot.voxel_size))
             self._planner.set_environment(env)
-            self._env_revision = revision
+            self._env_key = key
         return revision
 
     def _update(self, context, state) -> EventStatus:
-        MotionEvent = self._MotionEvent
         plan: PlannedTrajectory = context.get_abstract_state(self._plan_index).get_value()
         goal = self._goal_port.Eval(context) if self._goal_port.HasValue(context) else None
-        if goal is None or goal.motion != "plan":
+        if goal is None:
             return EventStatus.Succeeded()
         q = np.asarray(self._q_port.Eval(context), dtype=float)
+        if not np.all(np.isfinite(q)):
+            _log.error("WholeBodyPlanner: robot_configuration is not finite (%s); stopping", q)
+            state.get_mutable_abstract_state(self._plan_index).set_value(dc.replace(plan, trajectory=None))
+            return EventStatus.Succeeded()
         snapshot = self._map_port.Eval(context) if self._map_port.HasValue(context) else None
-        t = context.get_time()
+        p_WT = None
+        if self._target_port.HasValue(context):
+            p = np.asarray(self._target_port.Eval(context), dtype=float)
+            p_WT = p if np.all(np.isfinite(p)) else None
         try:
-            revision = self._set_map(snapshot)
+            revision = self._set_map(snapshot, p_WT)
         except ValueError as e:
             _log.error("WholeBodyPlanner: bad map (%s)", e)
             return EventStatus.Succeeded()
-        feedback = None
-        if goal.goal_id != plan.goal_id:
-            plan = self._plan(goal, q, t, revision)
-            if not plan.success:
-                feedback = self._MotionFeedback(goal.goal_id, MotionEvent.FAILED)
-        elif plan.success and plan.trajectory is not None:
-            if np.all(np.abs(layout.wrap_angle(q - goal.q_goal)) <= self._config.reach_tolerance) and \
-                    t >= plan.trajectory.end_time:
-                feedback = self._MotionFeedback(goal.goal_id, MotionEvent.REACHED)
-            elif revision != plan.map_revision:
-                if self._planner.trajectory_is_valid(plan.trajectory, from_time=t):
-                    plan = dc.replace(plan, map_revision=revision)
-                else:
-                    _log.info("WholeBodyPlanner t=%.2f: trajectory invalidated by map %d; replanning", t, revision)
-                    plan = self._plan(goal, q, t, revision)
-                    event = MotionEvent.INVALIDATED if plan.success else MotionEvent.FAILED
-                    feedback = self._MotionFeedback(goal.goal_id, event)
+        plan, event = self._supervisor.tick(plan, goal, q, context.get_time(), revision)
         state.get_mutable_abstract_state(self._plan_index).set_value(plan)
-        if feedback is not None:
-            state.get_mutable_abstract_state(self._feedback_index).set_value(feedback)
+        if event != MotionEvent.NONE:
+            state.get_mutable_abstract_state(self._feedback_index).set_value(self._MotionFeedback(goal.goal_id, event))
         return EventStatus.Succeeded()
-
-    def _plan(self, goal, q: np.ndarray, t: float, revision: int) -> PlannedTrajectory:
-        result = self._planner.plan(q, np.asarray(goal.q_goal, dtype=float))
-        if not result.success:
-            _log.warning("WholeBodyPlanner t=%.2f: goal %d failed: %s (%s)", t, goal.goal_id, result.reason,
-                         result.message)
-            return PlannedTrajectory(goal.goal_id, None, False, result.reason or FailureReason.TIMEOUT, revision,
-                                     result.timings["total"])
-        return PlannedTrajectory(goal.goal_id, result.trajectory.shifted(t), True, "", revision,
-                                 result.timings["total"])

@@ -1,0 +1,128 @@
+"""The motion layer of the WholeBodyPlanner system: linear and hold goals,
+planner exceptions, the replanning limit, reaching and settling."""
+
+import logging
+
+import numpy as np
+import pytest
+from pydrake.common.value import AbstractValue
+from pydrake.systems.analysis import Simulator
+
+from vamg_drake.perception.raycast_map import PointMapSnapshot
+from vamg_drake.planning.whole_body_planner import PlannerConfig
+from vamg_drake.policy.behaviour_tree import MotionEvent, Phase, SubgoalCommand
+from vamg_drake.robot import layout
+from vamg_drake.systems.planner_system import (
+    EXCEPTION_REASON,
+    REPLAN_LIMIT_REASON,
+    PlannerSystem,
+    PlannerSystemConfig,
+    linear_trajectory,
+    remaining_path,
+)
+
+
+def _goal(goal_id, q_goal, motion, phase=Phase.PREGRASP):
+    return SubgoalCommand(goal_id, np.asarray(q_goal, float), motion, phase, layout.GRIPPER_MAX_OPENING,
+                          np.full(2, np.nan))
+
+
+def _system(config=None):
+    system = PlannerSystem(config or PlannerSystemConfig(planner=PlannerConfig(attempt_budget_s=5.0)))
+    context = system.CreateDefaultContext()
+    system.GetInputPort("point_map").FixValue(
+        context, AbstractValue.Make(PointMapSnapshot(np.zeros((0, 3)), np.zeros(0, np.int64), 0.03, 0)))
+    return system, context
+
+
+def test_linear_goal_is_a_straight_joint_space_motion_within_its_speed():
+    system, context = _system()
+    q0 = layout.stow_configuration(1.0, 2.0, 0.5)
+    q1 = q0.copy()
+    q1[layout.TORSO] += 0.12
+    system.GetInputPort("robot_configuration").FixValue(context, q0)
+    system.GetInputPort("goal").FixValue(context, AbstractValue.Make(_goal(3, q1, "linear", Phase.GRASP_LIFT)))
+    simulator = Simulator(system, context)
+    simulator.AdvanceTo(0.05)
+    traj = system.GetOutputPort("timed_trajectory").Eval(context)
+    assert traj is not None
+    np.testing.assert_allclose(traj.q[0], q0)
+    np.testing.assert_allclose(traj.q[-1], q1)
+    # Torso at 0.25 x 0.1 m/s: 0.12 m takes 4.8 s.
+    assert traj.duration == pytest.approx(0.12 / (0.25 * layout.V_MAX[layout.TORSO]), rel=1e-6)
+    assert traj.max_rate_ratio() <= 0.25 + 1e-9
+    # Not reached while the robot stands at q0; reached once it is at q1 after the end.
+    system.GetInputPort("robot_configuration").FixValue(context, q1)
+    simulator.AdvanceTo(traj.end_time + 0.2)
+    feedback = system.GetOutputPort("motion_feedback").Eval(context)
+    assert feedback.goal_id == 3 and feedback.event == MotionEvent.REACHED
+
+
+def test_hold_goal_stops_the_robot():
+    system, context = _system()
+    q0 = layout.stow_configuration(0.0, 0.0, 0.0)
+    system.GetInputPort("robot_configuration").FixValue(context, q0)
+    system.GetInputPort("goal").FixValue(context, AbstractValue.Make(_goal(1, q0, "hold", Phase.GRASP_CLOSE)))
+    Simulator(system, context).AdvanceTo(0.25)
+    assert system.GetOutputPort("timed_trajectory").Eval(context) is None
+    assert system.GetOutputPort("motion_feedback").Eval(context).event == MotionEvent.NONE
+
+
+def test_planner_exception_becomes_a_planning_failure_with_traceback(caplog):
+    system, context = _system()
+
+    def broken_plan(q_start, q_goal):
+        raise RuntimeError("numba kernel exploded")
+
+    system.planner.plan = broken_plan
+    q0 = layout.stow_configuration(0.0, 0.0, 0.0)
+    system.GetInputPort("robot_configuration").FixValue(context, q0)
+    system.GetInputPort("goal").FixValue(context, AbstractValue.Make(
+        _goal(2, layout.stow_configuration(2.0, 0.0, 0.0), "plan")))
+    with caplog.at_level(logging.ERROR):
+        Simulator(system, context).AdvanceTo(0.05)
+    plan = system.GetOutputPort("trajectory").Eval(context)
+    assert not plan.success and plan.reason == EXCEPTION_REASON
+    assert "numba kernel exploded" in plan.error
+    assert system.GetOutputPort("timed_trajectory").Eval(context) is None
+    assert system.GetOutputPort("motion_feedback").Eval(context).event == MotionEvent.FAILED
+    assert "Traceback" in caplog.text and "broken_plan" in caplog.text
+
+
+def _wall(x, y, revision):
+    axes = [np.arange(x - 0.05, x + 0.05, 0.03), np.arange(y - 0.6, y + 0.6, 0.03), np.arange(0.05, 1.5, 0.03)]
+    p = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    return PointMapSnapshot(p, np.zeros(len(p), np.int64), 0.03, revision)
+
+
+def test_replanning_stops_after_max_replans():
+    config = PlannerSystemConfig(max_replans=2, planner=PlannerConfig(attempt_budget_s=5.0))
+    system, context = _system(config)
+    q0 = layout.stow_configuration(0.0, 0.0, 0.0)
+    system.GetInputPort("robot_configuration").FixValue(context, q0)
+    system.GetInputPort("goal").FixValue(context, AbstractValue.Make(
+        _goal(4, layout.stow_configuration(4.0, 0.0, 0.0), "plan")))
+    simulator = Simulator(system, context)
+    simulator.AdvanceTo(0.05)
+    events = []
+    # Each new map puts a short wall across the current path's middle: each plan is invalidated.
+    for revision in range(1, 5):
+        traj = system.GetOutputPort("timed_trajectory").Eval(context)
+        if traj is None:
+            break
+        x, y = traj.sample(0.5 * (traj.start_time + traj.end_time))[:2]
+        system.GetInputPort("point_map").FixValue(context, AbstractValue.Make(_wall(x, y, revision)))
+        simulator.AdvanceTo(context.get_time() + 0.1)
+        events.append(system.GetOutputPort("motion_feedback").Eval(context).event)
+    plan = system.GetOutputPort("trajectory").Eval(context)
+    assert events[:2] == [MotionEvent.INVALIDATED, MotionEvent.INVALIDATED]
+    assert events[2] == MotionEvent.FAILED and plan.reason == REPLAN_LIMIT_REASON
+
+
+def test_remaining_path_starts_at_the_robot():
+    q0 = layout.stow_configuration(0.0, 0.0, 0.0)
+    traj = linear_trajectory(q0, layout.stow_configuration(2.0, 0.0, 0.0), 0.0, 0.5)
+    q = traj.sample(0.5 * traj.end_time) + np.r_[0.0, 0.05, np.zeros(9)]
+    rest = remaining_path(traj, q)
+    np.testing.assert_allclose(rest[0], q)
+    assert rest[1, 0] > q[0] and len(rest) < traj.num_waypoints
