@@ -415,16 +415,47 @@ def _link_transforms(Q, b, head, parent, X_PJ, joint_type, axis, var_index, T):
 
 
 @numba.njit(cache=True)
+def _env_aabbs(box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, out):
+    """out[k] = (lo xyz, hi xyz) world AABB of primitive k (boxes, then cylinders)."""
+    nb = box_p.shape[0]
+    for k in range(nb + cyl_p.shape[0]):
+        for a in range(3):
+            if k < nb:
+                e = 0.0
+                for c in range(3):
+                    e += abs(box_R[k, a, c]) * box_half[k, c]
+                m = box_p[k, a]
+            else:
+                j = k - nb
+                ax = abs(cyl_R[j, a, 2])
+                e = ax * cyl_hl[j] + math.sqrt(max(1.0 - ax * ax, 0.0)) * cyl_r[j]
+                m = cyl_p[j, a]
+            out[k, a] = m - e
+            out[k, 3 + a] = m + e
+    return out
+
+
+@numba.njit(cache=True)
 def _config_free(Q, b, head, parent, X_PJ, joint_type, axis, var_index,
                  sph_link, sph_c, sph_r, sph_rs, pairs, q_lo, q_hi, T, C, PW,
                  has_field, dist, origin, h, margin,
                  box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
-                 prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere):
+                 prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere,
+                 env_aabb, near):
+    """Validity of configuration Q[b]; T, C, PW, near are scratch arrays.
+
+    Environment primitives are culled per configuration: only those whose
+    world AABB (`env_aabb`, see `_env_aabbs`) overlaps the AABB of the
+    robot's inflated spheres are tested, each first against the sphere's own
+    box.
+    """
     for j in range(Q.shape[1]):
         if not (Q[b, j] >= q_lo[j] and Q[b, j] <= q_hi[j]):  # also rejects NaN
             return False
     _link_transforms(Q, b, head, parent, X_PJ, joint_type, axis, var_index, T)
     S = sph_link.shape[0]
+    lx0, ly0, lz0 = 1e300, 1e300, 1e300
+    hx0, hy0, hz0 = -1e300, -1e300, -1e300
     for s in range(S):
         li = sph_link[s]
         px, py, pz = sph_c[s, 0], sph_c[s, 1], sph_c[s, 2]
@@ -435,6 +466,12 @@ def _config_free(Q, b, head, parent, X_PJ, joint_type, axis, var_index,
         if not check_env[s]:
             continue
         r = sph_r[s]
+        lx0 = min(lx0, cx - r)
+        ly0 = min(ly0, cy - r)
+        lz0 = min(lz0, cz - r)
+        hx0 = max(hx0, cx + r)
+        hy0 = max(hy0, cy + r)
+        hz0 = max(hz0, cz + r)
         if has_field:
             ix = int(math.floor((cx - origin[0]) / h + 0.5))
             iy = int(math.floor((cy - origin[1]) / h + 0.5))
@@ -442,34 +479,54 @@ def _config_free(Q, b, head, parent, X_PJ, joint_type, axis, var_index,
             if 0 <= ix < dist.shape[0] and 0 <= iy < dist.shape[1] and 0 <= iz < dist.shape[2]:
                 if dist[ix, iy, iz] - margin <= r:
                     return False
-        for k in range(box_p.shape[0]):
-            dx = cx - box_p[k, 0]
-            dy = cy - box_p[k, 1]
-            dz = cz - box_p[k, 2]
-            d2 = 0.0
-            for a in range(3):
-                lc = box_R[k, 0, a] * dx + box_R[k, 1, a] * dy + box_R[k, 2, a] * dz
-                e = abs(lc) - box_half[k, a]
-                if e > 0:
-                    d2 += e * e
-            if d2 <= r * r:
-                return False
-        for k in range(cyl_p.shape[0]):
-            dx = cx - cyl_p[k, 0]
-            dy = cy - cyl_p[k, 1]
-            dz = cz - cyl_p[k, 2]
-            lx = cyl_R[k, 0, 0] * dx + cyl_R[k, 1, 0] * dy + cyl_R[k, 2, 0] * dz
-            ly = cyl_R[k, 0, 1] * dx + cyl_R[k, 1, 1] * dy + cyl_R[k, 2, 1] * dz
-            lz = cyl_R[k, 0, 2] * dx + cyl_R[k, 1, 2] * dy + cyl_R[k, 2, 2] * dz
-            er = math.sqrt(lx * lx + ly * ly) - cyl_r[k]
-            ez = abs(lz) - cyl_hl[k]
-            d2 = 0.0
-            if er > 0:
-                d2 += er * er
-            if ez > 0:
-                d2 += ez * ez
-            if d2 <= r * r:
-                return False
+    # Broad phase: primitives whose AABB overlaps the robot's.
+    n_near = 0
+    for k in range(env_aabb.shape[0]):
+        if (env_aabb[k, 0] <= hx0 and env_aabb[k, 3] >= lx0 and env_aabb[k, 1] <= hy0
+                and env_aabb[k, 4] >= ly0 and env_aabb[k, 2] <= hz0 and env_aabb[k, 5] >= lz0):
+            near[n_near] = k
+            n_near += 1
+    nb = box_p.shape[0]
+    if n_near > 0:
+        for s in range(S):
+            if not check_env[s]:
+                continue
+            cx, cy, cz = C[s, 0], C[s, 1], C[s, 2]
+            r = sph_r[s]
+            for n in range(n_near):
+                k = near[n]
+                if (cx + r < env_aabb[k, 0] or cx - r > env_aabb[k, 3] or cy + r < env_aabb[k, 1]
+                        or cy - r > env_aabb[k, 4] or cz + r < env_aabb[k, 2] or cz - r > env_aabb[k, 5]):
+                    continue
+                if k < nb:
+                    dx = cx - box_p[k, 0]
+                    dy = cy - box_p[k, 1]
+                    dz = cz - box_p[k, 2]
+                    d2 = 0.0
+                    for a in range(3):
+                        lc = box_R[k, 0, a] * dx + box_R[k, 1, a] * dy + box_R[k, 2, a] * dz
+                        e = abs(lc) - box_half[k, a]
+                        if e > 0:
+                            d2 += e * e
+                    if d2 <= r * r:
+                        return False
+                else:
+                    m = k - nb
+                    dx = cx - cyl_p[m, 0]
+                    dy = cy - cyl_p[m, 1]
+                    dz = cz - cyl_p[m, 2]
+                    lx = cyl_R[m, 0, 0] * dx + cyl_R[m, 1, 0] * dy + cyl_R[m, 2, 0] * dz
+                    ly = cyl_R[m, 0, 1] * dx + cyl_R[m, 1, 1] * dy + cyl_R[m, 2, 1] * dz
+                    lz = cyl_R[m, 0, 2] * dx + cyl_R[m, 1, 2] * dy + cyl_R[m, 2, 2] * dz
+                    er = math.sqrt(lx * lx + ly * ly) - cyl_r[m]
+                    ez = abs(lz) - cyl_hl[m]
+                    d2 = 0.0
+                    if er > 0:
+                        d2 += er * er
+                    if ez > 0:
+                        d2 += ez * ez
+                    if d2 <= r * r:
+                        return False
     for k in range(pairs.shape[0]):
         a = pairs[k, 0]
         b = pairs[k, 1]
@@ -526,6 +583,9 @@ def _batch_free(Q, head, parent, X_PJ, joint_type, axis, var_index,
     T = np.empty((parent.shape[0], 3, 4))
     C = np.empty((sph_link.shape[0], 3))
     PW = np.empty((prim_link.shape[0], 3, 4))
+    env_aabb = np.empty((box_p.shape[0] + cyl_p.shape[0], 6))
+    _env_aabbs(box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, env_aabb)
+    near = np.empty(env_aabb.shape[0], dtype=np.int64)
     first = -1
     for n in range(order.shape[0]):
         b = order[n]
@@ -533,7 +593,7 @@ def _batch_free(Q, head, parent, X_PJ, joint_type, axis, var_index,
                           sph_link, sph_c, sph_r, sph_rs, pairs, q_lo, q_hi, T, C, PW,
                           has_field, dist, origin, h, margin,
                           box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
-                          prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere)
+                          prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere, env_aabb, near)
         out[b] = ok
         if not ok and first < 0:
             first = b

@@ -227,7 +227,7 @@ class WholeBodyPlanner:
     def plan(self, q_start: np.ndarray, q_goal: np.ndarray) -> PlanResult:
         """Plans a whole-body trajectory from q_start to the configuration q_goal."""
         t0 = time.perf_counter()
-        timings = {"base": 0.0, "arm": 0.0, "refine": 0.0, "total": 0.0}
+        timings = {"costmap": 0.0, "base": 0.0, "arm": 0.0, "refine": 0.0, "total": 0.0}
 
         def fail(reason: str, message: str, attempts: int = 0) -> PlanResult:
             timings["total"] = 1e3 * (time.perf_counter() - t0)
@@ -244,7 +244,9 @@ class WholeBodyPlanner:
         if not self.checker.is_free(qg[None])[0]:
             return fail(FailureReason.GOAL_IN_COLLISION, "the goal configuration is in collision")
         qg = _unwrap_toward(qs, qg)
+        tc = time.perf_counter()
         self._base_planner(qs[:3], qg[:3])
+        timings["costmap"] = 1e3 * (time.perf_counter() - tc)
         reason, message = FailureReason.TIMEOUT, ""
         for attempt in range(self.config.max_attempts):
             rng = np.random.default_rng([self.config.seed, attempt])
