@@ -3,6 +3,8 @@
     vamg run [--scenario FILE | --seed N] [--out DIR] [--policy NAME] [--time-limit S]
     vamg scenario generate --seed N --out FILE
     vamg maps build            (kinematic maps, when the policy package provides them)
+    vamg bench --suite S --methods a,b [--seeds K] --out DIR [--workers N] [--backend local|ray] [--resume]
+    vamg report DIR
 """
 
 from __future__ import annotations
@@ -57,6 +59,41 @@ def _cmd_scenario_generate(args) -> int:
     return 0
 
 
+def _cmd_bench(args) -> int:
+    from vamg_drake.bench.methods import MethodError, load_methods
+    from vamg_drake.bench.runner import episode_specs, run_sweep
+    from vamg_drake.bench.suites import SuiteError, materialize_suite, suite_config
+
+    try:
+        config = suite_config(args.suite, scenes=args.scenes, targets=args.targets)
+        methods = load_methods([m.strip() for m in args.methods.split(",") if m.strip()])
+    except (SuiteError, MethodError) as e:
+        raise SystemExit(f"vamg bench: {e}") from None
+    check_rendering_libraries()
+    try:
+        suite = materialize_suite(config, args.out, progress=not args.quiet)
+        specs = episode_specs(suite, methods, args.seeds)
+        records = run_sweep(specs, args.out, workers=args.workers, backend=args.backend, resume=args.resume,
+                            wall_limit=args.wall_limit, progress=not args.quiet, ray_address=args.ray_address)
+    except (SuiteError, FileExistsError, ValueError, RuntimeError) as e:
+        raise SystemExit(f"vamg bench: {e}") from None
+    print(json.dumps({"suite": config.name, "scenarios": len(suite.scenarios), "excluded": len(suite.excluded),
+                      "episodes": len(specs), "ran": len(records), "out": str(args.out)}))
+    return 0
+
+
+def _cmd_report(args) -> int:
+    from vamg_drake.bench.report import write_report
+    from vamg_drake.bench.results import ResultsError
+
+    try:
+        path = write_report(args.dir)
+    except (FileNotFoundError, ResultsError) as e:
+        raise SystemExit(f"vamg report: {e}") from None
+    print(f"wrote {path}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="vamg", description="Visibility-aware mobile grasping (Drake).")
     parser.add_argument("-v", "--verbose", action="store_true")
@@ -79,6 +116,25 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("--seed", type=int, required=True)
     gen.add_argument("--out", required=True)
     gen.set_defaults(func=_cmd_scenario_generate)
+
+    bench = sub.add_parser("bench", help="run a benchmark sweep (isolated, resumable episodes)")
+    bench.add_argument("--suite", required=True, help="smoke | static | dynamic | dynamic_moving | trigger_sweep | FILE.yaml")
+    bench.add_argument("--methods", required=True, help="comma-separated method names or YAML files (e.g. full,velocity_agnostic)")
+    bench.add_argument("--seeds", type=int, default=1, help="repetitions of every scenario (default 1)")
+    bench.add_argument("--out", required=True, help="results directory (results.jsonl, suites/)")
+    bench.add_argument("--workers", type=int, default=1, help="episodes in flight at once (default 1)")
+    bench.add_argument("--backend", choices=("local", "ray"), default="local")
+    bench.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
+    bench.add_argument("--resume", action="store_true", help="skip episodes already in DIR/results.jsonl")
+    bench.add_argument("--scenes", type=int, default=None, help="override the suite's number of scenes")
+    bench.add_argument("--targets", type=int, default=None, help="override the suite's targets per scene")
+    bench.add_argument("--wall-limit", type=float, default=900.0, help="per-episode wall-clock limit [s] (default 900)")
+    bench.add_argument("--quiet", action="store_true", help="no progress bars")
+    bench.set_defaults(func=_cmd_bench)
+
+    report = sub.add_parser("report", help="write DIR/report.md and plots from a results directory")
+    report.add_argument("dir", help="results directory (holding results.jsonl)")
+    report.set_defaults(func=_cmd_report)
 
     try:
         from vamg_drake.policy.maps_cli import add_maps_subparser

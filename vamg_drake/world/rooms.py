@@ -408,6 +408,21 @@ def _grid_path(grid: FloorGrid, free: np.ndarray, start: tuple[int, int], goals:
     return grid.centers[tuple(cells[path[::-1]].T)]
 
 
+def shortest_grid_path(grid: FloorGrid, free: np.ndarray, start: tuple[int, int], goals: np.ndarray) -> np.ndarray | None:
+    """Shortest 8-connected path (diagonal steps cost sqrt 2) over ``free`` cells.
+
+    Args:
+        grid: the floor grid.
+        free: (nx, ny) passable cells.
+        start: start cell index.
+        goals: (nx, ny) goal cells; the path ends at the nearest one.
+
+    Returns:
+        (N, 2) xy of the cell centres along the path, or None if no goal is reachable.
+    """
+    return _grid_path(grid, free, start, goals)
+
+
 def _pedestrian(
     grid: FloorGrid, free: np.ndarray, start: np.ndarray, goal_mask: np.ndarray, target_xy: np.ndarray, rng: np.random.Generator, config: RoomGeneratorConfig
 ) -> AppearAtDistance | None:
@@ -553,3 +568,72 @@ def _try_generate(seed: int, rng: np.random.Generator, config: RoomGeneratorConf
         dynamic_events=events,
         time_limit=config.time_limit,
     )
+
+
+# ------------------------------------------------------------- re-targeting
+
+
+def floor_grid_of(scenario: Scenario, config: RoomGeneratorConfig | None = None) -> tuple[FloorGrid, np.ndarray]:
+    """The generator's grid of a scenario: (grid with furniture footprints, reachable base cells)."""
+    config = config or RoomGeneratorConfig()
+    grid = FloorGrid(scenario.room, config.grid_resolution)
+    for piece in scenario.furniture:
+        grid.occupied |= grid.cells_in_polygon(_rectangle(piece.pose, footprint_size(piece)))
+    free = grid.base_free(config.robot_radius)
+    labels, main = _components(free)
+    return grid, (labels == main) if main else np.zeros_like(free)
+
+
+def target_candidates(scenario: Scenario, config: RoomGeneratorConfig | None = None) -> list[str]:
+    """Objects the generator would accept as a target (height band, approachable base)."""
+    config = config or RoomGeneratorConfig()
+    grid, reachable = floor_grid_of(scenario, config)
+    lo, hi = config.target_height_range
+    names = []
+    for obj in scenario.objects:
+        if lo <= obj.support_height <= hi and np.any(_reach_mask(grid, reachable, np.asarray(obj.xyz[:2]), config.reach_radius)):
+            names.append(obj.name)
+    return names
+
+
+def retarget_scenario(scenario: Scenario, target: str, seed: int, config: RoomGeneratorConfig | None = None) -> Scenario | None:
+    """The same room and objects with another target, a new start and new dynamic events.
+
+    The start and events are drawn as ``generate_scenario`` draws them, from
+    ``np.random.default_rng(seed)``. Returns None when no start or event fits.
+    """
+    import copy
+
+    config = config or RoomGeneratorConfig()
+    rng = np.random.default_rng(seed)
+    grid, reachable = floor_grid_of(scenario, config)
+    free = grid.base_free(config.robot_radius)
+    obj = scenario.object(target)
+    target_xy = np.asarray(obj.xyz[:2])
+    d = np.linalg.norm(grid.centers - target_xy, axis=-1)
+    lo_d, hi_d = config.start_distance_range
+    start_cells = np.argwhere(reachable & (d >= lo_d) & (d <= hi_d))
+    if len(start_cells) == 0:
+        return None
+    i, j = start_cells[int(rng.integers(len(start_cells)))]
+    start_xy = grid.centers[i, j]
+    out = copy.deepcopy(scenario)
+    out.target = target
+    out.robot_start = PlanarPose(_r(start_xy[0]), _r(start_xy[1]), _r(rng.uniform(-math.pi, math.pi)))
+    out.dynamic_events = []
+    if config.dynamic:
+        goal_mask = _reach_mask(grid, reachable, target_xy, config.reach_radius)
+        pedestrian = _pedestrian(grid, free, start_xy, goal_mask, target_xy, rng, config)
+        if pedestrian is not None:
+            out.dynamic_events.append(pedestrian)
+        surface = next((s for s in scenario.support_surfaces() if s.id == obj.support), None)
+        box = _table_top_box(surface, obj, scenario.objects, rng) if surface is not None else None
+        if box is not None:
+            out.dynamic_events.append(box)
+    if config.moving_obstacle:
+        walker = _moving_obstacle(grid, free, start_xy, rng)
+        if walker is not None:
+            out.dynamic_events.append(walker)
+    validate_scenario(out, f"retarget_scenario({scenario.name}, {target})")
+    return out
+

@@ -1,0 +1,294 @@
+"""The benchmark runner: isolated, resumable sweeps of suites x methods x seeds.
+
+Every episode runs in its own process (``multiprocessing`` "spawn") under a
+wall-clock limit, so a crash, a hang or an exception becomes a recorded
+``status: "error"`` line, never a dead sweep. The parent is the only writer of
+``DIR/results.jsonl``: one fsynced line per finished episode (see
+``results.py``); ``resume=True`` skips every key already there, so killing a
+sweep and resuming it loses and duplicates nothing. ``backend="ray"`` sends
+the same isolated episodes to a Ray cluster (``ray.init(address)``; a local
+instance when no address is given).
+"""
+
+import dataclasses as dc
+import logging
+import multiprocessing as mp
+import time
+import traceback
+from collections import defaultdict
+from collections.abc import Callable, Iterable
+from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+from dataclasses import dataclass
+from pathlib import Path
+
+from tqdm import tqdm
+
+from vamg_drake.bench.methods import Method
+from vamg_drake.bench.results import ERROR, RESULTS_FILE, SUCCESS, EpisodeRecord, ResultsWriter, finished_keys
+from vamg_drake.bench.suites import Suite, with_trigger_distance
+
+log = logging.getLogger(__name__)
+
+BACKENDS = ("local", "ray")
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    """Everything a worker needs to run one episode (picklable).
+
+    Attributes:
+        key: unique id in the sweep.
+        suite: suite name.
+        method: method name.
+        method_file: the method's YAML file.
+        scenario_file: absolute path of the scenario YAML.
+        scenario_id: id within the suite.
+        scene: scene seed.
+        target_index: target slot.
+        target: target object.
+        trigger_distance: pedestrian trigger distance [m] (None: as in the file).
+        run_seed: repetition index.
+        shortest_path: l_i for SPL [m].
+    """
+
+    key: str
+    suite: str
+    method: str
+    method_file: str
+    scenario_file: str
+    scenario_id: str
+    scene: int
+    target_index: int
+    target: str
+    trigger_distance: float | None
+    run_seed: int
+    shortest_path: float | None
+
+
+def episode_specs(suite: Suite, methods: list[Method], seeds: int) -> list[EpisodeSpec]:
+    """All episodes of a sweep, in a stable order (scenario-major, so methods interleave)."""
+    if seeds < 1:
+        raise ValueError(f"seeds: must be >= 1, got {seeds}")
+    dynamic = suite.config.dynamic
+    specs = []
+    for s in suite.scenarios:
+        for distance in suite.config.trigger_distances if dynamic else [None]:
+            for run in range(seeds):
+                for m in methods:
+                    d = "static" if distance is None else f"d{distance:g}"
+                    specs.append(EpisodeSpec(
+                        key=f"{suite.config.name}/{m.name}/{s.id}/{d}/r{run}", suite=suite.config.name, method=m.name,
+                        method_file=str(m.source), scenario_file=str((suite.directory / s.file).resolve()), scenario_id=s.id,
+                        scene=s.scene, target_index=s.target_index, target=s.target, trigger_distance=distance, run_seed=run,
+                        shortest_path=s.shortest_path,
+                    ))
+    return specs
+
+
+def run_scenario_episode(spec: EpisodeSpec):
+    """The real episode: load scenario and method, simulate headless (no recording).
+
+    Returns:
+        ``vamg_drake.episode.EpisodeResult``.
+    """
+    from vamg_drake.bench.methods import load_method
+    from vamg_drake.episode import run_episode
+    from vamg_drake.world.scenario import load_scenario
+
+    scenario = with_trigger_distance(load_scenario(spec.scenario_file), spec.trigger_distance)
+    config = load_method(spec.method_file).config
+    if hasattr(config, "seed"):
+        config.seed = spec.run_seed
+    return run_episode(scenario, config, out_dir=None, record=False, progress=False)
+
+
+EpisodeFn = Callable[[EpisodeSpec], object]
+
+
+def _record(spec: EpisodeSpec, status: str, wall: float, result: dict | None = None, error: str = "") -> EpisodeRecord:
+    result = result or {}
+    return EpisodeRecord(
+        key=spec.key, suite=spec.suite, method=spec.method, scene=spec.scene, target_index=spec.target_index,
+        target=spec.target, trigger_distance=spec.trigger_distance, run_seed=spec.run_seed,
+        scenario=result.get("scenario", spec.scenario_id), status=status,
+        planning_kind=result.get("planning_kind", "") or "", detail=result.get("detail", "") or "",
+        sim_time=float(result.get("sim_time", 0.0) or 0.0), wall_time=wall,
+        path_length=float(result.get("path_length", 0.0) or 0.0), shortest_path=spec.shortest_path,
+        timings=result.get("timings", {}) or {}, phases=result.get("phases", []) or [], error=error,
+    )
+
+
+def _child(conn, episode_fn: EpisodeFn, spec: EpisodeSpec) -> None:
+    import logging as _logging
+
+    _logging.basicConfig(level=_logging.WARNING)
+    try:
+        result = episode_fn(spec)
+        payload = dc.asdict(result) if dc.is_dataclass(result) else dict(result)
+        conn.send(("ok", payload))
+    except BaseException:  # noqa: BLE001  everything becomes a recorded failure
+        conn.send(("error", traceback.format_exc(limit=8)))
+    finally:
+        conn.close()
+
+
+def run_isolated(spec: EpisodeSpec, episode_fn: EpisodeFn = run_scenario_episode, wall_limit: float = 900.0) -> EpisodeRecord:
+    """Runs one episode in a fresh process; never raises for the episode's sake.
+
+    A crash (the process dies), a hang (``wall_limit`` seconds) or an exception
+    gives ``status="error"`` with the reason in ``error``.
+    """
+    ctx = mp.get_context("spawn")
+    recv, send = ctx.Pipe(duplex=False)
+    process = ctx.Process(target=_child, args=(send, episode_fn, spec), daemon=True)
+    t0 = time.perf_counter()
+    process.start()
+    send.close()
+    message = None
+    deadline = t0 + wall_limit
+    while message is None:
+        remaining = deadline - time.perf_counter()
+        if remaining <= 0:
+            break
+        if recv.poll(min(remaining, 1.0)):
+            try:
+                message = recv.recv()
+            except EOFError:  # the child died without a word
+                break
+        elif not process.is_alive() and not recv.poll(0.1):
+            break
+    wall = time.perf_counter() - t0
+    if process.is_alive():
+        process.join(5.0 if message is not None else 0.0)
+    if process.is_alive():
+        process.kill()
+        process.join()
+    recv.close()
+    if message is None:
+        if wall >= wall_limit:
+            return _record(spec, ERROR, wall, error=f"wall-clock limit {wall_limit:g} s exceeded; worker killed")
+        return _record(spec, ERROR, wall, error=f"worker died (exit code {process.exitcode})")
+    kind, payload = message
+    if kind == "error":
+        return _record(spec, ERROR, wall, error=f"exception in episode:\n{payload}")
+    return _record(spec, str(payload.get("status", ERROR)), wall, result=payload)
+
+
+class _Progress:
+    """tqdm bar with running success rates per method."""
+
+    def __init__(self, total: int, done_before: int, enabled: bool):
+        self.bar = tqdm(total=total, initial=done_before, desc="bench", disable=not enabled, dynamic_ncols=True)
+        self.counts: dict[str, list[int]] = defaultdict(lambda: [0, 0])
+
+    def update(self, record: EpisodeRecord) -> None:
+        c = self.counts[record.method]
+        c[0] += record.status == SUCCESS
+        c[1] += 1
+        self.bar.set_postfix_str(" ".join(f"{m} {s}/{n} ({100 * s / n:.0f}%)" for m, (s, n) in sorted(self.counts.items())))
+        self.bar.update(1)
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+def run_sweep(
+    specs: Iterable[EpisodeSpec],
+    out_dir: str | Path,
+    workers: int = 1,
+    backend: str = "local",
+    resume: bool = False,
+    episode_fn: EpisodeFn = run_scenario_episode,
+    wall_limit: float = 900.0,
+    progress: bool = True,
+    ray_address: str | None = None,
+) -> list[EpisodeRecord]:
+    """Runs the episodes not yet in ``out_dir/results.jsonl`` and appends their records.
+
+    Args:
+        specs: the sweep.
+        out_dir: results directory.
+        workers: episodes in flight at once.
+        backend: "local" (process per episode) or "ray".
+        resume: skip keys already recorded; without it, a results file that
+            already holds any of these keys is an error (nothing is overwritten).
+        episode_fn: the episode (picklable; a module-level function).
+        wall_limit: per-episode wall-clock limit [s].
+        progress: show the progress bar.
+        ray_address: Ray cluster address (None: start or join a local instance).
+
+    Returns:
+        The records written by this call.
+    """
+    if backend not in BACKENDS:
+        raise ValueError(f"backend: unknown '{backend}' (known: {', '.join(BACKENDS)})")
+    if workers < 1:
+        raise ValueError(f"workers: must be >= 1, got {workers}")
+    specs = list(specs)
+    keys = [s.key for s in specs]
+    if len(set(keys)) != len(keys):
+        raise ValueError("specs: repeated keys")
+    path = Path(out_dir) / RESULTS_FILE
+    done = finished_keys(path)
+    clash = done & set(keys)
+    if clash and not resume:
+        raise FileExistsError(f"{path} already holds {len(clash)} of these episodes; pass --resume to continue the sweep, or use another --out")
+    todo = [s for s in specs if s.key not in done]
+    bar = _Progress(len(specs), len(specs) - len(todo), progress)
+    written: list[EpisodeRecord] = []
+    with ResultsWriter(path) as writer:
+
+        def finish(record: EpisodeRecord) -> None:
+            writer.append(record)
+            written.append(record)
+            bar.update(record)
+            if record.status == ERROR:
+                log.warning("%s: %s", record.key, record.error.splitlines()[0] if record.error else "error")
+
+        try:
+            if backend == "ray":
+                _run_ray(todo, workers, episode_fn, wall_limit, finish, ray_address)
+            else:
+                _run_local(todo, workers, episode_fn, wall_limit, finish)
+        finally:
+            bar.close()
+    return written
+
+
+def _run_local(todo: list[EpisodeSpec], workers: int, episode_fn: EpisodeFn, wall_limit: float, finish) -> None:
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        pending = {pool.submit(run_isolated, spec, episode_fn, wall_limit) for spec in todo}
+        while pending:
+            complete, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for future in complete:
+                finish(future.result())
+
+
+def _run_ray(todo: list[EpisodeSpec], workers: int, episode_fn: EpisodeFn, wall_limit: float, finish, address: str | None) -> None:
+    try:
+        import ray
+    except ImportError:
+        raise RuntimeError("backend 'ray' needs Ray: pip install 'vamg_drake[ray]' (or pip install 'ray>=2.9')") from None
+    started = False
+    if not ray.is_initialized():
+        ray.init(address=address, num_cpus=None if address else workers, include_dashboard=False, log_to_driver=False)
+        started = True
+    try:
+        remote = ray.remote(num_cpus=1, max_retries=0)(run_isolated)
+        queue = list(todo)
+        in_flight = {}
+        while queue or in_flight:
+            while queue and len(in_flight) < workers:
+                spec = queue.pop(0)
+                in_flight[remote.remote(spec, episode_fn, wall_limit)] = spec
+            ready, _ = ray.wait(list(in_flight), num_returns=1)
+            for ref in ready:
+                spec = in_flight.pop(ref)
+                try:
+                    record = ray.get(ref)
+                except Exception as e:  # noqa: BLE001  a lost Ray worker or node
+                    record = _record(spec, ERROR, 0.0, error=f"ray task failed: {' '.join(str(e).split())[:500]}")
+                finish(record)
+    finally:
+        if started:
+            ray.shutdown()
