@@ -9,9 +9,9 @@ u = [v, w, h_dot, q_arm_dot(7)]. Each cycle:
    nearest sample to the current q by the weighted distance
    ``w_p |dp_xy|^2 + w_h wrap(dtheta)^2 + w_j |wrap(dq_joints)|^2`` is searched
    forward only, inside ``[previous nearest, previous nearest +
-   search_window_time]``, so progress is monotone and a path that crosses
-   itself never snaps back (a small `progress_weight` on the time ahead of the
-   previous nearest breaks ties in favour of the nearer part of the path).
+   search_window_time]`` and never past the next cusp, so progress is monotone
+   and a path that crosses or folds back on itself never snaps back. Ties (a
+   pause in the path) go to the latest sample, so a pause never stalls it.
 2. **Look-ahead.** The reference is the sample `lookahead_time` seconds after
    the nearest one (the look-ahead is in seconds of the planner's own time
    parametrization, i.e. a fixed number of resampled waypoints). With the
@@ -85,7 +85,6 @@ class TrackerConfig:
         position_weight: weight of |dp_xy|^2 [1/m^2] in the nearest-waypoint metric.
         heading_weight: weight of wrap(dtheta)^2 [1/rad^2].
         joint_weight: weight of each torso/arm joint's squared error.
-        progress_weight: weight of (time ahead of the previous nearest)^2 [1/s^2].
         lateral_gain: cross-track heading correction [1/m]; 0 = the paper's law.
         max_lateral_correction: bound of the heading correction [rad].
         lateral_stop_distance: no lateral correction this close to the next stop
@@ -122,7 +121,6 @@ class TrackerConfig:
     position_weight: float = 1.0
     heading_weight: float = 0.05
     joint_weight: float = 0.1
-    progress_weight: float = 0.05
     lateral_gain: float = 4.0
     max_lateral_correction: float = 0.5
     lateral_stop_distance: float = 0.1
@@ -160,7 +158,7 @@ class TrackerConfig:
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"TrackerConfig.{name} must be finite and > 0, got {value}")
         non_negative = ("lookahead_time", "position_weight", "heading_weight", "joint_weight",
-                        "progress_weight", "lateral_gain", "max_lateral_correction", "lateral_stop_distance",
+                        "lateral_gain", "max_lateral_correction", "lateral_stop_distance",
                         "stall_command_ratio")
         for name in non_negative:
             value = getattr(self, name)
@@ -459,8 +457,7 @@ class WholeBodyTrackerCore:
         dx = state_error(window, q_now)
         d2 = (cfg.position_weight * (dx[:, 0] ** 2 + dx[:, 1] ** 2)
               + cfg.heading_weight * dx[:, 2] ** 2
-              + cfg.joint_weight * np.sum(dx[:, 3:] ** 2, axis=1)
-              + cfg.progress_weight * (ts[lo:hi + 1] - ts[lo]) ** 2)
+              + cfg.joint_weight * np.sum(dx[:, 3:] ** 2, axis=1))
         # Ties (a pause in the path) go to the latest sample so progress never stalls.
         self._nearest = lo + (d2.shape[0] - 1 - int(np.argmin(d2[::-1])))
         return self._nearest
