@@ -1,0 +1,358 @@
+"""``vamg report DIR``: the paper's tables and plots from a results directory.
+
+Reads ``DIR/results.jsonl`` (a truncated last line is skipped with a warning;
+the file is not modified) and writes ``DIR/report.md`` plus PNG plots:
+
+* the results table (paper Table "Simulation evaluation results"): success and
+  each failure category in % per suite and method, with 95 % Wilson intervals;
+  statuses outside the paper's categories go to an "other" column;
+* SPL (appendix "Path Efficiency Analysis") over episodes with a grid path;
+* per-scene spread: min / max / std of per-scene success rates;
+* the trigger-distance sweep (success and collision vs. trigger distance);
+* the pre-grasp sampling-completeness curve, read from
+  ``DIR/bench_subgoal.json`` (the ``--json`` last line of
+  ``benchmarks/bench_subgoal.py``) when present;
+* the compute-cost breakdown per module (mean ms per call, calls per episode).
+
+The functions below are what the notebook calls, so notebook and report agree.
+"""
+
+import json
+import logging
+import math
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from vamg_drake.bench.methods import PAPER_METHODS
+from vamg_drake.bench.metrics import spl, wilson_interval
+from vamg_drake.bench.results import CATEGORIES, OTHER, RESULTS_FILE, SUCCESS, category_of, load_records
+
+log = logging.getLogger(__name__)
+
+COLUMNS = CATEGORIES + (OTHER,)
+COMPLETENESS_FILE = "bench_subgoal.json"
+
+
+def method_order(methods) -> list[str]:
+    """The paper's row order first, then any other method alphabetically."""
+    methods = set(methods)
+    return [m for m in PAPER_METHODS if m in methods] + sorted(methods - set(PAPER_METHODS))
+
+
+def _groups(records: list[dict], *fields: str) -> dict[tuple, list[dict]]:
+    out: dict[tuple, list[dict]] = defaultdict(list)
+    for r in records:
+        out[tuple(r.get(f) for f in fields)].append(r)
+    return out
+
+
+def results_table(records: list[dict]) -> list[dict]:
+    """One row per (suite, method): n, % per column, Wilson interval, SPL, per-scene spread."""
+    rows = []
+    groups = _groups(records, "suite", "method")
+    for suite in sorted({k[0] for k in groups}):
+        for method in method_order(m for s, m in groups if s == suite):
+            rs = groups[(suite, method)]
+            n = len(rs)
+            counts = {c: 0 for c in COLUMNS}
+            for r in rs:
+                counts[category_of(r["status"])] += 1
+            lo, hi = wilson_interval(counts[SUCCESS], n)
+            with_path = [r for r in rs if r.get("shortest_path") is not None]
+            spl_value = spl(
+                np.array([r["status"] == SUCCESS for r in with_path]),
+                np.array([r["shortest_path"] for r in with_path], dtype=float),
+                np.array([r.get("path_length", 0.0) for r in with_path], dtype=float),
+            ) if with_path else float("nan")
+            per_scene = [np.mean([r["status"] == SUCCESS for r in g]) for g in _groups(rs, "scene").values()]
+            rows.append({
+                "suite": suite, "method": method, "n": n,
+                **{c: 100.0 * counts[c] / n for c in COLUMNS},
+                "success_ci": (100.0 * lo, 100.0 * hi),
+                "spl": 100.0 * spl_value,
+                "scenes": len(per_scene),
+                "scene_min": 100.0 * float(np.min(per_scene)), "scene_max": 100.0 * float(np.max(per_scene)),
+                "scene_std": 100.0 * float(np.std(per_scene)),
+                "planning_kinds": dict(sorted(_count(r.get("planning_kind", "") for r in rs if r["status"] == "planning").items())),
+            })
+    return rows
+
+
+def _count(values) -> dict:
+    out: dict = defaultdict(int)
+    for v in values:
+        out[v or "unspecified"] += 1
+    return out
+
+
+def trigger_sweep(records: list[dict]) -> list[dict]:
+    """Success and collision rate per (suite, method, trigger distance), dynamic suites only."""
+    rows = []
+    dyn = [r for r in records if r.get("trigger_distance") is not None]
+    for (suite, method, d), rs in sorted(_groups(dyn, "suite", "method", "trigger_distance").items(), key=lambda kv: (kv[0][0], kv[0][1], kv[0][2])):
+        n = len(rs)
+        s = sum(r["status"] == SUCCESS for r in rs)
+        rows.append({"suite": suite, "method": method, "trigger_distance": d, "n": n, "success": 100.0 * s / n,
+                     "success_ci": tuple(100.0 * x for x in wilson_interval(s, n)),
+                     "collision": 100.0 * sum(r["status"] == "collision" for r in rs) / n})
+    return rows
+
+
+def compute_cost(records: list[dict]) -> list[dict]:
+    """Per (method, module): mean ms per call and calls per episode."""
+    rows = []
+    for (method,), rs in _groups(records, "method").items():
+        total_ms: dict[str, float] = defaultdict(float)
+        calls: dict[str, int] = defaultdict(int)
+        for r in rs:
+            for module, t in (r.get("timings") or {}).items():
+                count = int(t.get("count", 0) or 0)
+                total = t.get("total_ms")
+                if total is None and "mean_ms" in t:
+                    total = t["mean_ms"] * count
+                if count and total is not None:
+                    total_ms[module] += float(total)
+                    calls[module] += count
+        for module in sorted(total_ms):
+            rows.append({"method": method, "module": module, "mean_ms": total_ms[module] / calls[module],
+                         "calls_per_episode": calls[module] / len(rs), "ms_per_episode": total_ms[module] / len(rs)})
+    order = {m: i for i, m in enumerate(method_order({r["method"] for r in rows}))}
+    return sorted(rows, key=lambda r: (order[r["method"]], r["module"]))
+
+
+def completeness_curve(directory: str | Path) -> dict[int, float] | None:
+    """Samples -> success rate from ``DIR/bench_subgoal.json`` (None if absent or unreadable)."""
+    path = Path(directory) / COMPLETENESS_FILE
+    if not path.is_file():
+        return None
+    lines = [ln for ln in path.read_text().splitlines() if ln.strip()]
+    try:
+        curve = json.loads(lines[-1])["completeness_curve"]
+    except (IndexError, KeyError, json.JSONDecodeError) as e:
+        log.warning("%s: no completeness_curve in its last line (%s); skipped", path, e)
+        return None
+    return {int(k): v for k, v in sorted(curve.items(), key=lambda kv: int(kv[0])) if v is not None}
+
+
+# ------------------------------------------------------------------ plots
+
+
+def plot_success(rows: list[dict], path: str | Path) -> None:
+    """Success rate per method and suite with 95 % Wilson error bars."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    suites = sorted({r["suite"] for r in rows})
+    methods = method_order({r["method"] for r in rows})
+    fig, ax = plt.subplots(figsize=(max(6, 1.2 * len(methods) * len(suites)), 4))
+    width = 0.8 / max(1, len(suites))
+    for k, suite in enumerate(suites):
+        by = {r["method"]: r for r in rows if r["suite"] == suite}
+        x = np.array([i for i, m in enumerate(methods) if m in by]) + k * width
+        y = np.array([by[m]["success"] for m in methods if m in by])
+        lo = y - np.array([by[m]["success_ci"][0] for m in methods if m in by])
+        hi = np.array([by[m]["success_ci"][1] for m in methods if m in by]) - y
+        ax.bar(x, y, width, yerr=[lo, hi], capsize=3, label=suite)
+    ax.set_xticks(np.arange(len(methods)) + 0.4 - width / 2, methods, rotation=20, ha="right")
+    ax.set_ylabel("success [%] (95 % Wilson)")
+    ax.set_ylim(0, 100)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plot_failures(rows: list[dict], path: str | Path) -> None:
+    """Stacked outcome categories per (suite, method)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = [f"{r['suite']}\n{r['method']}" for r in rows]
+    fig, ax = plt.subplots(figsize=(max(6, 1.1 * len(rows)), 4.5))
+    bottom = np.zeros(len(rows))
+    for column in COLUMNS:
+        values = np.array([r[column] for r in rows])
+        if np.any(values > 0):
+            ax.bar(labels, values, bottom=bottom, label=column)
+            bottom += values
+    ax.set_ylabel("episodes [%]")
+    ax.legend(fontsize=8, ncol=4)
+    ax.tick_params(axis="x", labelsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plot_spl(rows: list[dict], path: str | Path) -> None:
+    """SPL per (suite, method)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(max(6, 1.1 * len(rows)), 4))
+    ax.bar([f"{r['suite']}\n{r['method']}" for r in rows], [0.0 if math.isnan(r["spl"]) else r["spl"] for r in rows])
+    ax.set_ylabel("SPL [%]")
+    ax.tick_params(axis="x", labelsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plot_per_scene(records: list[dict], path: str | Path) -> None:
+    """Per-scene success rates (one dot per scene) per (suite, method)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    groups = _groups(records, "suite", "method")
+    keys = sorted(groups, key=lambda k: (k[0], method_order({m for _, m in groups}).index(k[1])))
+    fig, ax = plt.subplots(figsize=(max(6, 1.1 * len(keys)), 4))
+    for i, key in enumerate(keys):
+        rates = [100.0 * np.mean([r["status"] == SUCCESS for r in g]) for g in _groups(groups[key], "scene").values()]
+        ax.scatter(np.full(len(rates), i) + np.linspace(-0.15, 0.15, len(rates)), rates, s=14)
+    ax.set_xticks(range(len(keys)), [f"{s}\n{m}" for s, m in keys], fontsize=8)
+    ax.set_ylabel("per-scene success [%]")
+    ax.set_ylim(-5, 105)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plot_trigger_sweep(rows: list[dict], path: str | Path) -> None:
+    """Success and collision rate vs trigger distance."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for (suite, method), rs in _groups(rows, "suite", "method").items():
+        d = [r["trigger_distance"] for r in rs]
+        ax.plot(d, [r["success"] for r in rs], "o-", label=f"{suite}/{method} success")
+        ax.plot(d, [r["collision"] for r in rs], "x--", label=f"{suite}/{method} collision")
+    ax.set_xlabel("trigger distance [m]")
+    ax.set_ylabel("episodes [%]")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plot_completeness(curve: dict[int, float], path: str | Path) -> None:
+    """Pre-grasp sampling success vs number of samples."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    ax.plot(list(curve), [100.0 * v for v in curve.values()], "o-")
+    ax.set_xlabel("pre-grasp samples")
+    ax.set_ylabel("solved problems [%]")
+    ax.set_ylim(0, 105)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plot_compute_cost(rows: list[dict], path: str | Path) -> None:
+    """Mean ms per call per module, one group of bars per method."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    modules = sorted({r["module"] for r in rows})
+    methods = method_order({r["method"] for r in rows})
+    fig, ax = plt.subplots(figsize=(max(6, 0.9 * len(modules) * max(1, len(methods)) / 2), 4))
+    width = 0.8 / max(1, len(methods))
+    for k, method in enumerate(methods):
+        by = {r["module"]: r["mean_ms"] for r in rows if r["method"] == method}
+        ax.bar(np.arange(len(modules)) + k * width, [by.get(m, 0.0) for m in modules], width, label=method)
+    ax.set_xticks(np.arange(len(modules)) + 0.4 - width / 2, modules, rotation=20, ha="right")
+    ax.set_ylabel("mean per call [ms]")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+# ------------------------------------------------------------------ report
+
+
+def _pct(x: float) -> str:
+    return "–" if math.isnan(x) else f"{x:.2f}"
+
+
+def write_report(directory: str | Path) -> Path:
+    """Writes ``DIR/report.md`` and its PNG plots; returns the report's path.
+
+    Raises:
+        FileNotFoundError: no results file.
+        ResultsError: a bad line that is not the last.
+    """
+    directory = Path(directory)
+    records = load_records(directory / RESULTS_FILE)
+    if not records:
+        raise FileNotFoundError(f"{directory / RESULTS_FILE}: no finished episodes yet")
+    rows = results_table(records)
+    sweep = trigger_sweep(records)
+    cost = compute_cost(records)
+    curve = completeness_curve(directory)
+    plots = {"success": "success_rates.png", "failures": "failures.png", "spl": "spl.png", "per_scene": "per_scene.png"}
+    plot_success(rows, directory / plots["success"])
+    plot_failures(rows, directory / plots["failures"])
+    plot_spl(rows, directory / plots["spl"])
+    plot_per_scene(records, directory / plots["per_scene"])
+    lines = [f"# Benchmark report: {directory.name}", "", f"{len(records)} episodes from `{RESULTS_FILE}`.", ""]
+    lines += ["## Results (paper table; all values %)", "",
+              "| suite | method | n | success | 95 % Wilson | " + " | ".join(COLUMNS[1:]) + " | SPL |",
+              "|---|---|---:|---:|---|" + "---:|" * len(COLUMNS[1:]) + "---:|"]
+    for r in rows:
+        lo, hi = r["success_ci"]
+        lines.append(f"| {r['suite']} | {r['method']} | {r['n']} | {_pct(r['success'])} | [{lo:.1f}, {hi:.1f}] | "
+                     + " | ".join(_pct(r[c]) for c in COLUMNS[1:]) + f" | {_pct(r['spl'])} |")
+    lines += ["", f"Categories: {', '.join(CATEGORIES)}; `{OTHER}` counts any other status (harness errors, old vocabularies).",
+              "Planning failures by kind: " + "; ".join(f"{r['suite']}/{r['method']}: {r['planning_kinds']}" for r in rows if r["planning_kinds"]) or "none", "",
+              f"![success]({plots['success']})", "", f"![failures]({plots['failures']})", "", f"![SPL]({plots['spl']})", ""]
+    lines += ["## Per-scene spread", "", "| suite | method | scenes | min | max | std |", "|---|---|---:|---:|---:|---:|"]
+    for r in rows:
+        lines.append(f"| {r['suite']} | {r['method']} | {r['scenes']} | {r['scene_min']:.1f} | {r['scene_max']:.1f} | {r['scene_std']:.1f} |")
+    lines += ["", f"![per-scene]({plots['per_scene']})", ""]
+    lines += ["## Trigger-distance sweep", ""]
+    if sweep:
+        plot_trigger_sweep(sweep, directory / "trigger_sweep.png")
+        lines += ["| suite | method | trigger [m] | n | success | collision |", "|---|---|---:|---:|---:|---:|"]
+        lines += [f"| {r['suite']} | {r['method']} | {r['trigger_distance']:g} | {r['n']} | {r['success']:.1f} | {r['collision']:.1f} |" for r in sweep]
+        lines += ["", "![trigger sweep](trigger_sweep.png)", ""]
+    else:
+        lines += ["No dynamic episodes in these results.", ""]
+    lines += ["## Pre-grasp sampling completeness", ""]
+    if curve:
+        plot_completeness(curve, directory / "completeness.png")
+        lines += ["| samples | " + " | ".join(str(k) for k in curve) + " |", "|---|" + "---:|" * len(curve),
+                  "| solved % | " + " | ".join(f"{100 * v:.1f}" for v in curve.values()) + " |", "", "![completeness](completeness.png)", ""]
+    else:
+        lines += [f"Not measured here: put the last line of `python benchmarks/bench_subgoal.py --json` into `{COMPLETENESS_FILE}`.", ""]
+    lines += ["## Compute cost per module", ""]
+    if cost:
+        plot_compute_cost(cost, directory / "compute_cost.png")
+        lines += ["| method | module | mean ms/call | calls/episode | ms/episode |", "|---|---|---:|---:|---:|"]
+        lines += [f"| {r['method']} | {r['module']} | {r['mean_ms']:.2f} | {r['calls_per_episode']:.1f} | {r['ms_per_episode']:.1f} |" for r in cost]
+        lines += ["", "![compute cost](compute_cost.png)", ""]
+    else:
+        lines += ["No module timings in these results.", ""]
+    errors = [r for r in records if r.get("error")]
+    if errors:
+        lines += ["## Harness errors", ""] + [f"- `{r['key']}`: {r['error'].splitlines()[0] if r['error'] else ''}" for r in errors[:50]] + [""]
+    out = directory / "report.md"
+    out.write_text("\n".join(lines))
+    return out
