@@ -90,8 +90,9 @@ def _stow_joints() -> np.ndarray:
     return layout.stow_configuration(0.0, 0.0, 0.0)[layout.TORSO_ARM]
 
 
-def straight_reference(rng: np.random.Generator, length: float = 3.0, step: float = 0.03) -> TimedTrajectory:
-    """A straight base path from a random pose, arm stowed, timed at the limits."""
+def straight_reference(rng: np.random.Generator, length: float | None = None, step: float = 0.03) -> TimedTrajectory:
+    """A straight base path (random length 1-4 m unless given) from a random pose, arm stowed."""
+    length = rng.uniform(1.0, 4.0) if length is None else length
     x0, y0 = rng.uniform(-2.0, 2.0, 2)
     th = rng.uniform(-np.pi, np.pi)
     s = np.linspace(0.0, length, int(np.ceil(length / step)) + 1)
@@ -100,9 +101,12 @@ def straight_reference(rng: np.random.Generator, length: float = 3.0, step: floa
     return time_parametrize(_with_body(poses, joints, joints))
 
 
-def arc_reference(rng: np.random.Generator, radius: float = 1.0, angle: float = 2.0,
+def arc_reference(rng: np.random.Generator, radius: float | None = None, angle: float | None = None,
                   step: float = 0.03) -> TimedTrajectory:
-    """A forward circular arc (left or right) with the torso rising and the arm moving."""
+    """A forward circular arc (left or right; random radius 0.6-2 m and angle
+    0.8-2.5 rad unless given) with the torso rising and the arm moving."""
+    radius = rng.uniform(0.6, 2.0) if radius is None else radius
+    angle = rng.uniform(0.8, 2.5) if angle is None else angle
     x0, y0 = rng.uniform(-2.0, 2.0, 2)
     th0 = rng.uniform(-np.pi, np.pi)
     sign = rng.choice([-1.0, 1.0])
