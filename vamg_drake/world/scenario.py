@@ -385,6 +385,25 @@ class MoveAlongPath:
 DynamicEvent = AppearAtDistance | AppearAtPhase | MoveAlongPath
 
 
+# ------------------------------------------------------------- ReplicaCAD
+
+
+@dataclass
+class ReplicaCadScene:
+    """A ReplicaCAD scene instance as the room (``vamg_drake.world.replicacad``).
+
+    Attributes:
+        scene: scene instance name, e.g. "apt_0".
+        dataset_dir: leave empty in committed files: the dataset is found via
+            ``$VAMG_REPLICACAD_DIR``, ``$MS_ASSET_DIR`` or ``~/.maniskill/data``.
+        require_stage: fail if the apartment shell (stage mesh) is missing.
+    """
+
+    scene: str = ""
+    dataset_dir: str = ""
+    require_stage: bool = False
+
+
 # --------------------------------------------------------------- scenario
 
 
@@ -402,6 +421,8 @@ class Scenario:
         robot_start: base pose (x, y, yaw = theta).
         dynamic_events: obstacles that appear or move during the episode.
         time_limit: episode time limit [s].
+        replicacad: a ReplicaCAD scene loaded in addition to room and
+            furniture (its receptacles are support surfaces), or None.
     """
 
     name: str = ""
@@ -415,6 +436,21 @@ class Scenario:
         default_factory=list
     )
     time_limit: float = 120.0
+    replicacad: ReplicaCadScene | None = None
+
+    def replicacad_layout(self):
+        """Returns the loaded ``ReplicaCadLayout``, or None without ``replicacad``.
+
+        Raises:
+            ReplicaCadError: if the dataset, scene or an asset is missing.
+        """
+        if self.replicacad is None:
+            return None
+        from vamg_drake.world.replicacad import load_replicacad_layout  # (imports this module)
+
+        return load_replicacad_layout(
+            self.replicacad.scene, self.replicacad.dataset_dir or None, self.replicacad.require_stage
+        )
 
     def object(self, name: str) -> PlacedObject:
         """Returns the placed object called ``name`` (KeyError if absent)."""
@@ -443,14 +479,24 @@ class Scenario:
                         world_primitive(f"{furniture.name}/{part.name}", part.shape, p_WP, R_WP),
                     )
                 )
+        layout = self.replicacad_layout()
+        if layout is not None:
+            surfaces.extend(SupportSurface(r.id, r.height, r.box) for r in layout.receptacles)
         return surfaces
 
 
 def static_obstacle_shapes(scenario: Scenario) -> list[WorldPrimitive]:
-    """Returns walls and furniture as world primitives (no floor, no objects)."""
+    """Returns walls and furniture as world primitives (no floor, no objects).
+
+    A ReplicaCAD scene adds its navmesh walls and one vertical-axis box around
+    each collision piece (``ReplicaCadLayout.static_shapes``).
+    """
     shapes: list[WorldPrimitive] = list(scenario.room.wall_primitives())
     for furniture in scenario.furniture:
         shapes.extend(furniture.primitives())
+    layout = scenario.replicacad_layout()
+    if layout is not None:
+        shapes.extend(layout.static_shapes())
     return shapes
 
 
@@ -572,6 +618,7 @@ def validate_scenario(scenario: Scenario, source: str = "<scenario>") -> None:
     if not scenario.time_limit > 0:
         problems.append(f"time_limit: must be positive, got {scenario.time_limit}")
     room_ok = _check_room(scenario.room, problems)
+    replicacad_ok = _check_replicacad(scenario, problems)
 
     furniture_names: set[str] = set()
     problems_before_furniture = len(problems)
@@ -598,7 +645,7 @@ def validate_scenario(scenario: Scenario, source: str = "<scenario>") -> None:
             elif part.support and (abs(part.rpy[0]) > 1e-6 or abs(part.rpy[1]) > 1e-6):
                 problems.append(f"{pw}.support: a support part must be level (roll = pitch = 0)")
 
-    furniture_ok = len(problems) == problems_before_furniture
+    furniture_ok = len(problems) == problems_before_furniture and replicacad_ok
     surfaces = {s.id: s for s in scenario.support_surfaces()} if furniture_ok else {}
     seen: set[str] = set()
     for i, obj in enumerate(scenario.objects):
@@ -655,6 +702,22 @@ def validate_scenario(scenario: Scenario, source: str = "<scenario>") -> None:
         raise ScenarioError([f"{source}: {p}" for p in problems])
 
 
+def _check_replicacad(scenario: Scenario, problems: list[str]) -> bool:
+    if scenario.replicacad is None:
+        return True
+    if not scenario.replicacad.scene:
+        problems.append("replicacad.scene: missing")
+        return False
+    from vamg_drake.world.replicacad import ReplicaCadError
+
+    try:
+        scenario.replicacad_layout()
+    except ReplicaCadError as e:
+        problems.append(f"replicacad: {e}")
+        return False
+    return True
+
+
 def _check_start(scenario: Scenario, problems: list[str]) -> None:
     start = scenario.robot_start
     p = np.array([[start.x, start.y]])
@@ -672,4 +735,13 @@ def _check_start(scenario: Scenario, problems: list[str]) -> None:
             problems.append(
                 f"robot_start: footprint (r = {r} m) at ({start.x}, {start.y}) overlaps furniture {furniture.name!r}"
                 f" ({'centre inside it' if clearance < 0 else f'clearance {clearance:.2f} m'})"
+            )
+    layout = scenario.replicacad_layout()
+    if layout is not None:
+        if not layout.navmesh.contains_xy(p)[0]:
+            problems.append(f"robot_start: ({start.x}, {start.y}) is not on the navmesh of {layout.scene!r}")
+        clearance = footprint_clearance(p, layout.static_shapes())[0]
+        if clearance < r:
+            problems.append(
+                f"robot_start: footprint (r = {r} m) at ({start.x}, {start.y}) overlaps {layout.scene!r} geometry (clearance {clearance:.2f} m)"
             )

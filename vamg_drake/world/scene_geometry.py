@@ -7,6 +7,9 @@
   "floor", "walls" and one per piece of furniture, named after it, in the
   model instance "scene"), with collision and visual geometry and a shared
   contact material;
+* a ReplicaCAD scene (``scenario.replicacad``): its navmesh walls on "walls",
+  and its objects and articulated links as welded bodies "rc/..." in "scene"
+  (``vamg_drake.world.replicacad.register_replicacad``);
 * YCB objects: free bodies with gravity, one model instance each (named after
   the object), default pose from the scenario;
 * dynamic obstacles: one model instance per event with prismatic x, y, z joints
@@ -295,6 +298,13 @@ def add_scene(
         body = welded_body(furniture.name, X_WF)
         for part, primitive in zip(furniture.parts, furniture.primitives()):
             register_primitive(plant, body, primitive, X_WF, tuple(part.rgba), config)
+    layout = scenario.replicacad_layout()
+    if layout is not None:
+        from vamg_drake.world.replicacad import register_replicacad
+
+        for wall in layout.walls:
+            register_primitive(plant, walls_body, wall, I_W, _WALL_RGBA, config)
+        register_replicacad(plant, scene, layout, _proximity(config, False, 0.05))
 
     object_bodies: dict[str, RigidBody] = {}
     for obj in scenario.objects:

@@ -26,6 +26,11 @@ def plot_topdown(
         fig, ax = plt.subplots(figsize=(7, 7))
     poly = scenario.room.polygon()
     ax.fill(*np.vstack([poly, poly[:1]]).T, color="#f4f1ea", zorder=0)
+    layout = scenario.replicacad_layout()
+    if layout is not None:  # the walkable floor of a ReplicaCAD scene
+        for i in range(len(layout.navmesh.polygons)):
+            nav = layout.navmesh.polygon_xy(i)
+            ax.fill(*np.vstack([nav, nav[:1]]).T, color="#dcecd5", zorder=0.5)
     for shape in static_obstacle_shapes(scenario):
         fp = shape.footprint()
         is_wall = shape.name.startswith("wall")
