@@ -1,7 +1,7 @@
 """The `vamg` command (also `python -m vamg_drake.cli`).
 
     vamg run [--scenario FILE | --seed N] [--out DIR] [--policy NAME] [--time-limit S]
-    vamg scenario generate --seed N --out FILE
+    vamg scenario generate --seed N --out FILE [--replicacad SCENE [--replicacad-dir DIR]]
     vamg maps build            (kinematic maps, when the policy package provides them)
     vamg bench --suite S --methods a,b [--seeds K] --out DIR [--workers N] [--backend local|ray] [--resume]
     vamg report DIR
@@ -51,7 +51,15 @@ def _cmd_scenario_generate(args) -> int:
     from vamg_drake.world.rooms import generate_scenario
     from vamg_drake.world.scenario import save_scenario
 
-    scenario = generate_scenario(args.seed)
+    if args.replicacad:
+        from vamg_drake.world.replicacad import ReplicaCadError, replicacad_scenario
+
+        try:
+            scenario = replicacad_scenario(args.replicacad, args.seed, dataset_dir=args.replicacad_dir)
+        except ReplicaCadError as e:
+            raise SystemExit(f"vamg scenario generate: {e}") from None
+    else:
+        scenario = generate_scenario(args.seed)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     save_scenario(scenario, out)
@@ -112,9 +120,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     scenario = sub.add_parser("scenario", help="scenario tools")
     scenario_sub = scenario.add_subparsers(dest="scenario_command", required=True)
-    gen = scenario_sub.add_parser("generate", help="generate a procedural room scenario")
+    gen = scenario_sub.add_parser("generate", help="generate a procedural room (or ReplicaCAD) scenario")
     gen.add_argument("--seed", type=int, required=True)
     gen.add_argument("--out", required=True)
+    gen.add_argument("--replicacad", metavar="SCENE", help="a ReplicaCAD scene instance (e.g. apt_0) instead of a procedural room")
+    gen.add_argument("--replicacad-dir", help="ReplicaCAD dataset (default: $VAMG_REPLICACAD_DIR, $MS_ASSET_DIR, ~/.maniskill/data); stored in the file")
     gen.set_defaults(func=_cmd_scenario_generate)
 
     bench = sub.add_parser("bench", help="run a benchmark sweep (isolated, resumable episodes)")
