@@ -1,0 +1,19 @@
+"""Fault injection for the runner's isolation tests: episodes that crash, hang or raise.
+
+Module-level so that spawned worker processes can import them (they inherit sys.path).
+"""
+
+import os
+import time
+
+
+def crashing_episode(spec):
+    os._exit(7)  # the process dies without a word, as a segfault in a solver would
+
+
+def hanging_episode(spec):
+    time.sleep(3600)
+
+
+def raising_episode(spec):
+    raise RuntimeError(f"boom in {spec.key}")

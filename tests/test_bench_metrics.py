@@ -1,0 +1,81 @@
+"""Wilson intervals, SPL and the SPL shortest path against hand-computed values."""
+
+import math
+
+import numpy as np
+import pytest
+
+from vamg_drake.bench.metrics import ShortestPathConfig, shortest_base_path, spl, wilson_interval
+from vamg_drake.world.scenario import Box, Furniture, Part, PlacedObject, PlanarPose, Room, Scenario
+
+
+def test_wilson_matches_hand_computation():
+    # p = 0.8, n = 10, z = 1.96: centre = (p + z^2/2n) / (1 + z^2/n) = 0.716737,
+    # half = z / (1 + z^2/n) * sqrt(p(1-p)/n + z^2/4n^2) = 0.226577.
+    lo, hi = wilson_interval(8, 10)
+    assert lo == pytest.approx(0.490162, abs=1e-5)
+    assert hi == pytest.approx(0.943312, abs=1e-5)
+    # 0 of 2: the lower end clips to 0, the upper end is z^2/(n + z^2) = 0.657590.
+    lo, hi = wilson_interval(0, 2)
+    assert lo == 0.0
+    assert hi == pytest.approx(3.841459 / (2 + 3.841459), abs=1e-5)
+    # The paper's appendix: 69.5 % of 2,000 trials -> [67.4 %, 71.5 %].
+    lo, hi = wilson_interval(1390, 2000)
+    assert (round(lo, 3), round(hi, 3)) == (0.674, 0.715)
+    assert wilson_interval(0, 0) == (0.0, 1.0)
+
+
+@pytest.mark.parametrize("s, n", [(3, 2), (-1, 4), (1, -1)])
+def test_wilson_rejects_bad_counts(s, n):
+    with pytest.raises(ValueError, match="successes"):
+        wilson_interval(s, n)
+
+
+def test_spl_matches_hand_computation():
+    success = np.array([1, 1, 0, 1], dtype=bool)
+    shortest = np.array([4.0, 2.0, 3.0, 5.0])
+    taken = np.array([5.0, 2.0, 1.0, 4.0])
+    # (4/5 + 2/2 + 0 + 5/max(4, 5)) / 4 = 2.8 / 4
+    assert spl(success, shortest, taken) == pytest.approx(0.7)
+    assert spl(np.array([True]), np.array([0.0]), np.array([0.0])) == 1.0
+    assert math.isnan(spl(np.array([], bool), np.array([]), np.array([])))
+    with pytest.raises(ValueError, match="equal-length"):
+        spl(success, shortest[:2], taken)
+    with pytest.raises(ValueError, match="finite"):
+        spl(success, np.array([4.0, np.nan, 3.0, 5.0]), taken)
+
+
+def _room_scenario(furniture=()):
+    return Scenario(
+        name="hand",
+        room=Room(outline=[[0, 0], [6, 0], [6, 3], [0, 3]]),
+        furniture=list(furniture),
+        objects=[PlacedObject(name="apple", xyz=[5.0, 1.5, 0.8], support="x/top", support_height=0.76)],
+        target="apple",
+        robot_start=PlanarPose(1.0, 1.5, 0.0),
+    )
+
+
+def test_shortest_path_straight_in_an_empty_room():
+    # Start and target sit on cell centres on one grid row: l = 4.0 m exactly.
+    assert shortest_base_path(_room_scenario()) == pytest.approx(4.0, abs=1e-9)
+
+
+def test_shortest_path_respects_height_range_and_detours():
+    # A wall of furniture across x = 3 from y = 0 to 2.4 leaves a 0.6 m gap.
+    low = Furniture(name="low", kind="cabinet", pose=PlanarPose(3.0, 1.2, 0.0),
+                    parts=[Part(name="body", shape=Box([0.2, 2.4, 0.8]), xyz=[0.0, 0.0, 0.4])])
+    high = Furniture(name="high", kind="shelf", pose=PlanarPose(3.0, 1.2, 0.0),
+                     parts=[Part(name="board", shape=Box([0.2, 2.4, 0.2]), xyz=[0.0, 0.0, 1.8])])
+    # Above 1.5 m: ignored (appendix height range), the path stays straight.
+    assert shortest_base_path(_room_scenario([high])) == pytest.approx(4.0, abs=1e-9)
+    detour = shortest_base_path(_room_scenario([low]))
+    assert detour is not None and detour > 4.0 + 0.5
+    # The gap is 0.6 m wide (clearance 0.3 m at its middle): a 0.31 m base cannot
+    # pass, so the goal becomes the reachable cell nearest the target, before the wall.
+    assert shortest_base_path(_room_scenario([low]), ShortestPathConfig(robot_radius=0.31)) < 2.0
+    blocked = Furniture(name="wall", kind="cabinet", pose=PlanarPose(3.0, 1.5, 0.0),
+                        parts=[Part(name="body", shape=Box([0.2, 3.0, 0.8]), xyz=[0.0, 0.0, 0.4])])
+    # Fully blocked: the goal is the reachable cell nearest the target, on the start's side.
+    l_blocked = shortest_base_path(_room_scenario([blocked]))
+    assert l_blocked == pytest.approx(3.0 - 0.1 - 0.29 - 1.0, abs=0.06)

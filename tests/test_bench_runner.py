@@ -1,0 +1,132 @@
+"""The benchmark runner: smoke suite end to end, kill + resume, isolation, bad input, Ray."""
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+import bench_faults
+from vamg_drake.bench.methods import load_methods
+from vamg_drake.bench.results import CATEGORIES, ERROR, OTHER, load_records
+from vamg_drake.bench.runner import episode_specs, run_isolated, run_sweep
+from vamg_drake.bench.suites import SUITES, materialize_suite
+from vamg_drake.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def smoke_root(tmp_path_factory):
+    """The smoke suite, built once (2 validated scenarios, 3 s time limit)."""
+    root = tmp_path_factory.mktemp("smoke_suite")
+    suite = materialize_suite(SUITES["smoke"], root, progress=False)
+    assert len(suite.scenarios) == 2
+    return root
+
+
+def _out_with_suite(smoke_root: Path, out: Path) -> Path:
+    shutil.copytree(smoke_root / "suites", out / "suites")
+    return out
+
+
+@pytest.mark.slow
+def test_smoke_suite_end_to_end_for_two_methods(smoke_root, tmp_path):
+    out = _out_with_suite(smoke_root, tmp_path / "run")
+    assert main(["bench", "--suite", "smoke", "--methods", "full,velocity_agnostic", "--out", str(out), "--quiet"]) == 0
+    records = load_records(out)
+    assert sorted(r["key"] for r in records) == sorted(
+        f"smoke/{m}/{s}/static/r0" for m in ("full", "velocity_agnostic") for s in ("s0000_t00", "s0001_t00"))
+    for r in records:
+        assert r["status"] in CATEGORIES or r["status"] == ERROR, r
+        assert r["shortest_path"] is not None and r["shortest_path"] > 0
+    assert main(["report", str(out)]) == 0
+    report = (out / "report.md").read_text()
+    assert "| smoke | velocity_agnostic | 2 |" in report and "| smoke | full | 2 |" in report
+    for png in ("success_rates.png", "failures.png", "spl.png", "per_scene.png"):
+        assert (out / png).stat().st_size > 0
+
+
+def test_kill_and_resume_loses_and_duplicates_nothing(smoke_root, tmp_path):
+    out = _out_with_suite(smoke_root, tmp_path / "run")
+    results = out / "results.jsonl"
+    cmd = [sys.executable, "-m", "vamg_drake.cli", "bench", "--suite", "smoke", "--methods", "scripted,scripted_slow",
+           "--out", str(out), "--quiet"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.time() + 240
+        while time.time() < deadline and not (results.is_file() and results.read_text().count("\n") >= 1):
+            time.sleep(0.2)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)  # the sweep and its workers
+        proc.wait()
+    before = results.read_text()
+    n_before = before.count("\n")
+    assert 1 <= n_before < 4, "the sweep should have been killed part-way"
+    # A kill in the middle of a write leaves a fragment; resume must not trip over it.
+    fragment = '{"key":"smoke/scripted/s0001_t00/static/r0","suite":"sm'
+    with open(results, "a") as f:
+        f.write(fragment)
+    # Without --resume nothing is overwritten.
+    with pytest.raises(SystemExit, match="--resume"):
+        main(cmd[3:])
+    assert main([*cmd[3:], "--resume"]) == 0
+    after = results.read_text()
+    assert after.startswith(before)  # finished lines kept byte for byte
+    keys = [json.loads(line)["key"] for line in after.splitlines()]
+    expected = {f"smoke/{m}/{s}/static/r0" for m in ("scripted", "scripted_slow") for s in ("s0000_t00", "s0001_t00")}
+    assert len(keys) == len(set(keys)) == 4 and set(keys) == expected
+    assert fragment in (out / "results.jsonl.corrupt").read_text()
+    # A resume of a finished sweep runs nothing.
+    assert main([*cmd[3:], "--resume"]) == 0
+    assert results.read_text() == after
+
+
+def test_crash_hang_and_exception_become_recorded_errors(smoke_root, tmp_path):
+    suite = materialize_suite(SUITES["smoke"], smoke_root, progress=False)
+    spec = episode_specs(suite, load_methods(["scripted"]), 1)[0]
+    crashed = run_isolated(spec, bench_faults.crashing_episode, wall_limit=120)
+    assert crashed.status == ERROR and "exit code 7" in crashed.error
+    hung = run_isolated(spec, bench_faults.hanging_episode, wall_limit=6)
+    assert hung.status == ERROR and "wall-clock limit 6 s" in hung.error
+    raised = run_isolated(spec, bench_faults.raising_episode, wall_limit=120)
+    assert raised.status == ERROR and "boom in" in raised.error
+    # In a sweep the failures are lines of results.jsonl like any other.
+    specs = episode_specs(suite, load_methods(["scripted"]), 1)
+    written = run_sweep(specs, tmp_path, episode_fn=bench_faults.crashing_episode, progress=False, workers=2)
+    assert [r.status for r in written] == [ERROR, ERROR]
+    assert len(load_records(tmp_path)) == 2
+
+
+def test_bad_input_gets_clear_messages(smoke_root, tmp_path):
+    out = _out_with_suite(smoke_root, tmp_path / "run")
+    with pytest.raises(SystemExit, match=r"unknown method 'nope' \(known: .*full"):
+        main(["bench", "--suite", "smoke", "--methods", "full,nope", "--out", str(out)])
+    with pytest.raises(SystemExit, match=r"unknown suite 'tiny' \(known: smoke, static, dynamic"):
+        main(["bench", "--suite", "tiny", "--methods", "full", "--out", str(out)])
+    # A scenario file that fails validation: named with its field; results untouched.
+    results = out / "results.jsonl"
+    results.write_text('{"key": "earlier", "status": "success"}\n')
+    bad = out / "suites" / "smoke" / "scenarios" / "s0001_t00.yaml"
+    bad.write_text(bad.read_text().replace("target: ", "target: not_an_object_", 1))
+    with pytest.raises(SystemExit, match=r"s0001_t00.yaml: target"):
+        main(["bench", "--suite", "smoke", "--methods", "scripted", "--out", str(out), "--resume", "--quiet"])
+    assert results.read_text() == '{"key": "earlier", "status": "success"}\n'
+    # The report of a directory without results says so.
+    with pytest.raises(SystemExit, match="no results file"):
+        main(["report", str(tmp_path / "empty")])
+
+
+def test_ray_backend_runs_the_same_sweep(smoke_root, tmp_path):
+    pytest.importorskip("ray", reason="Ray is an optional extra: pip install 'vamg_drake[ray]'")
+    suite = materialize_suite(SUITES["smoke"], smoke_root, progress=False)
+    specs = episode_specs(suite, load_methods(["scripted"]), 1)
+    written = run_sweep(specs, tmp_path, backend="ray", workers=2, progress=False)
+    assert sorted(r.key for r in written) == sorted(s.key for s in specs)
+    assert all(r.status != ERROR for r in written), [r.error for r in written]
+    assert {r["key"] for r in load_records(tmp_path)} == {s.key for s in specs}
