@@ -37,7 +37,7 @@ def _scenario(args):
 
 def run(scenario, sim_time: float, camera: bool) -> dict:
     scenario.time_limit = sim_time + 1.0
-    ed = build_diagram(scenario, DiagramConfig(world=WorldConfig(enable_camera=camera)))
+    ed = build_diagram(scenario, DiagramConfig(policy="scripted", world=WorldConfig(enable_camera=camera)))
     simulator = Simulator(ed.diagram)
     simulator.Initialize()
     t0 = time.perf_counter()

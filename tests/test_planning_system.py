@@ -49,7 +49,8 @@ def test_plans_then_replans_when_the_map_blocks_the_path():
     assert np.max(np.abs(plan.trajectory.q[:, 1])) > 0.2  # goes around the pillar
 
 
-def test_goal_in_collision_reports_failure():
+def test_goal_in_collision_reports_an_invalidated_goal():
+    """The map put the goal in collision: the policy must resample (not count a motion failure)."""
     system = PlannerSystem(PlannerSystemConfig(planner=PlannerConfig(attempt_budget_s=5.0)))
     context = system.CreateDefaultContext()
     qg = layout.stow_configuration(3.0, 0.0, 0.0)
@@ -62,4 +63,4 @@ def test_goal_in_collision_reports_failure():
     plan = system.GetOutputPort("trajectory").Eval(context)
     feedback = system.GetOutputPort("motion_feedback").Eval(context)
     assert not plan.success and plan.reason == "goal_in_collision"
-    assert feedback.goal_id == 7 and feedback.event == MotionEvent.FAILED
+    assert feedback.goal_id == 7 and feedback.event == MotionEvent.INVALIDATED

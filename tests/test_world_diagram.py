@@ -7,12 +7,12 @@ from pydrake.systems.analysis import Simulator
 from scenes import box_room_scenario, table
 from vamg_drake.diagram import DiagramConfig, build_diagram
 from vamg_drake.robot.kinematics import FetchKinematics
-from vamg_drake.world.episode_monitor import COLLISION, RUNNING, SUCCESS, TIMEOUT, Contact, EpisodeJudge
+from vamg_drake.world.episode_monitor import COLLISION, PLANNING, RUNNING, SUCCESS, Contact, EpisodeJudge
 from vamg_drake.world.scenario import Box, Furniture, Part, PlanarPose
 
 
 def _simulate(scenario, t, config=None):
-    ed = build_diagram(scenario, config or DiagramConfig())
+    ed = build_diagram(scenario, config or DiagramConfig(policy="scripted"))
     sim = Simulator(ed.diagram)
     sim.Initialize()
     status = sim.AdvanceTo(t)
@@ -45,7 +45,7 @@ def test_depth_of_a_box_at_known_distance():
     scenario.furniture = [cabinet, table("table_0", 2.6, 1.8)]
     scenario.objects[0].xyz = [2.6, 1.8, 0.80]
     scenario.robot_start = PlanarPose(-0.5, 0.0, 0.0)
-    config = DiagramConfig(waypoints=[[-0.5, 0.0]])
+    config = DiagramConfig(policy="scripted", waypoints=[[-0.5, 0.0]])
     config.scripted.head_pan_amplitude = 0.0
     config.scripted.head_tilt = 0.0
     ed, sim, _ = _simulate(scenario, 0.0, config)
@@ -60,7 +60,7 @@ def test_depth_of_a_box_at_known_distance():
 def test_driving_into_a_wall_is_a_collision_at_the_right_time():
     scenario = box_room_scenario(time_limit=10.0)
     scenario.robot_start = PlanarPose(0.0, -1.5, 0.0)
-    config = DiagramConfig(waypoints=[[6.0, -1.5]])  # through the wall at x = 3
+    config = DiagramConfig(policy="scripted", waypoints=[[6.0, -1.5]])  # through the wall at x = 3
     ed, sim, status = _simulate(scenario, 10.0, config)
     outcome = _eval(ed.monitor, "outcome", sim)
     assert outcome.status == COLLISION and "wall" in outcome.detail
@@ -109,7 +109,8 @@ def test_judge_collision_rules():
     judge = EpisodeJudge(0.8, 30.0)
     assert judge.update(0.0, [palm_on_target], 0.8, False).status == COLLISION
     judge = EpisodeJudge(0.8, 1.0)
-    assert judge.update(1.0, [], 0.8, False).status == TIMEOUT
+    outcome = judge.update(1.0, [], 0.8, False)
+    assert outcome.status == PLANNING and outcome.kind == "time_limit"
 
 
 def test_missing_rendering_library_names_the_package(monkeypatch):

@@ -1,6 +1,6 @@
 """The `vamg` command (also `python -m vamg_drake.cli`).
 
-    vamg run [--scenario FILE | --seed N] [--out DIR] [--policy NAME] [--time-limit S]
+    vamg run [--scenario FILE | --seed N [--dynamic]] [--config FILE] [--policy full|scripted] [--out DIR] [--time-limit S]
     vamg scenario generate --seed N --out FILE [--replicacad SCENE [--replicacad-dir DIR]]
     vamg maps build            (kinematic maps, when the policy package provides them)
     vamg bench --suite S --methods a,b [--seeds K] --out DIR [--workers N] [--backend local|ray] [--resume]
@@ -28,22 +28,47 @@ def _load_or_generate(args) -> "Scenario":  # noqa: F821
             raise SystemExit(f"vamg: {e}") from None
     from vamg_drake.world.rooms import generate_scenario
 
-    return generate_scenario(args.seed)
+    from vamg_drake.world.rooms import RoomGeneratorConfig
+
+    dynamic = bool(getattr(args, "dynamic", False))
+    return generate_scenario(args.seed, RoomGeneratorConfig(dynamic=dynamic))
+
+
+def _load_diagram_config(path: str | None) -> "DiagramConfig":  # noqa: F821
+    from pydrake.common.yaml import yaml_load_typed
+
+    from vamg_drake.diagram import DiagramConfig
+
+    if not path:
+        return DiagramConfig()
+    try:
+        text = Path(path).read_text()
+        return yaml_load_typed(schema=DiagramConfig, data=text, defaults=DiagramConfig())
+    except FileNotFoundError:
+        raise SystemExit(f"vamg: config file not found: {path}") from None
+    except RuntimeError as e:  # yaml_load_typed names the bad key
+        raise SystemExit(f"vamg: {path}: {e}") from None
 
 
 def _cmd_run(args) -> int:
     from vamg_drake.diagram import POLICIES, DiagramConfig
     from vamg_drake.episode import run_episode
 
-    if args.policy not in POLICIES:
+    if args.policy and args.policy not in POLICIES:
         raise SystemExit(f"vamg run: unknown --policy '{args.policy}' (known: {', '.join(POLICIES)})")
     check_rendering_libraries()
     scenario = _load_or_generate(args)
     if args.time_limit is not None:
         scenario.time_limit = args.time_limit
-    config = DiagramConfig(policy=args.policy)
+    config = _load_diagram_config(args.config)
+    if args.policy:
+        config.policy = args.policy
+    try:
+        config.validate()
+    except ValueError as e:
+        raise SystemExit(f"vamg run: {e}") from None
     result = run_episode(scenario, config, out_dir=args.out, record=not args.no_replay, progress=not args.quiet)
-    print(json.dumps({k: v for k, v in result.__dict__.items() if k != "timings"}))
+    print(json.dumps({k: v for k, v in result.__dict__.items() if k not in ("timings", "phases")}))
     return 0
 
 
@@ -112,7 +137,9 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--scenario", help="scenario YAML file")
     src.add_argument("--seed", type=int, default=0, help="generate the scenario from this seed (default 0)")
     run.add_argument("--out", default="runs/demo", help="output directory (episode.json, replay.html, topdown.png)")
-    run.add_argument("--policy", default="scripted", help="policy: scripted")
+    run.add_argument("--dynamic", action="store_true", help="with --seed: a dynamic scenario (pedestrian, table-top box)")
+    run.add_argument("--config", help="DiagramConfig YAML (partial; defaults fill the rest), e.g. a bench method file")
+    run.add_argument("--policy", default=None, help="full (default) or scripted")
     run.add_argument("--time-limit", type=float, default=None, help="override the scenario's time limit [s]")
     run.add_argument("--no-replay", action="store_true", help="skip the Meshcat recording")
     run.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -1,15 +1,21 @@
 """build_diagram(): the whole episode as one Drake `Diagram`.
 
-    Scenario ─► World (plant + scene graph + head RgbdSensor)
-                 │ plant state                      │ depth, X_WC
-                 ▼                                  ▼
-          RobotStateSelector ──► policy ──► RobotCommandIntegrator ──► plant desired state
-                 │                                  DepthSampler (10 Hz) ──► depth_frame
-                 └──► DynamicObstacleDriver ──► obstacle desired states
-          EpisodeMonitor (collision / success / time limit) ──► outcome
+The full system (``policy: full``, the default)::
 
-The policy is chosen by `DiagramConfig.policy`; "scripted" drives a waypoint
-list and sweeps the head (`ScriptedDriver`).
+    Scenario ─► World (plant + scene graph + head RgbdSensor)
+      plant state ─► RobotStateSelector ─► q
+      depth, X_WC, q ─► RayCastMap (10 Hz) ─► point_map
+      depth, X_WC, target ─► TargetCloud ─► target_cloud
+      point_map, q, target, motion_feedback, target_cloud ─► SubgoalPolicy ─► goal, phase, gripper_command
+      goal, point_map, q, target ─► WholeBodyPlanner ─► timed_trajectory, motion_feedback
+      timed_trajectory, q ─► WholeBodyTracker (20 Hz) ─► base_velocity, joint_velocity
+      timed_trajectory, q, target ─► GazeOptimizer (10 Hz) ─► head_command
+      velocities, head, gripper ─► RobotCommandIntegrator ─► plant desired state
+      phase, q ─► DynamicObstacleDriver ─► obstacle desired states
+      EpisodeMonitor (collision / success / policy and planner verdicts / time limit) ─► outcome
+
+``policy: scripted`` replaces everything between the map and the integrator
+by `ScriptedDriver` (a waypoint list and a head sweep), to exercise the world.
 """
 
 
@@ -25,49 +31,105 @@ from pydrake.geometry import (
     Role,
 )
 from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource
 
-from vamg_drake.robot import layout
+from vamg_drake.control.whole_body_tracker import TrackerConfig
+from vamg_drake.perception.gaze import GazeConfig
+from vamg_drake.perception.raycast_map import RayCastMapConfig
+from vamg_drake.policy.behaviour_tree import BehaviourConfig
+from vamg_drake.policy.subgoal_pipeline import SubgoalPipelineConfig
 from vamg_drake.systems.depth_sampler import DepthSampler
 from vamg_drake.systems.dynamic_obstacles import DynamicObstacleDriver
 from vamg_drake.systems.episode_monitor_system import EpisodeMonitor
+from vamg_drake.systems.gaze_system import GazeOptimizer
+from vamg_drake.systems.planner_system import PlannerSystem, PlannerSystemConfig
+from vamg_drake.systems.raycast_map_system import RayCastMap
 from vamg_drake.systems.robot_command import RobotCommandIntegrator
 from vamg_drake.systems.robot_state import RobotStateSelector
 from vamg_drake.systems.scripted_driver import ScriptedDriver, ScriptedDriverConfig
+from vamg_drake.systems.subgoal_policy_system import SubgoalPolicyConfig, make_subgoal_policy
+from vamg_drake.systems.target_cloud import TargetCloud
 from vamg_drake.systems.timing import ModuleTimings
+from vamg_drake.systems.tracker_system import WholeBodyTracker
 from vamg_drake.world.episode_monitor import EpisodeMonitorConfig
 from vamg_drake.world.scenario import Scenario
 from vamg_drake.world.world_builder import World, WorldConfig, build_world, initial_robot_configuration
 
-POLICIES = ("scripted",)
+POLICIES = ("full", "scripted")
+#: How the full system organises its subgoals (the paper's methods share the rest).
+STRATEGIES = ("subgoal_tree", "direct_grasping", "closed_loop_replanning", "nav_and_manip", "capmap_placement")
 
 
 @dc.dataclass
 class DiagramConfig:
-    """Configuration of an episode diagram."""
+    """Configuration of an episode diagram (loadable with `yaml_load_typed`).
+
+    Attributes:
+        world: the simulated world.
+        monitor: success and collision criteria.
+        policy: "full" (the paper's system) or "scripted" (drives waypoints).
+        method: the method's name, recorded in results.
+        strategy: one of STRATEGIES (see `vamg_drake.bench` for the methods).
+        seed: seed of the samplers and the planner.
+        map: the ray-cast map.
+        gaze: the gaze optimizer (``variant`` selects the velocity-agnostic ablation).
+        subgoal: the subgoal samplers.
+        behaviour: the behaviour tree's budgets.
+        policy_system: the SubgoalPolicy system.
+        planner: the WholeBodyPlanner system.
+        tracker: the 20 Hz whole-body tracker.
+        scripted: the scripted driver.
+        waypoints: scripted waypoints [[x, y], ...]; empty = towards the target, stopping short.
+        command_period: period of the command integrator [s].
+    """
 
     world: WorldConfig = dc.field(default_factory=WorldConfig)
     monitor: EpisodeMonitorConfig = dc.field(default_factory=EpisodeMonitorConfig)
-    policy: str = "scripted"
+    policy: str = "full"
+    method: str = "full"
+    strategy: str = "subgoal_tree"
+    seed: int = 0
+    map: RayCastMapConfig = dc.field(default_factory=RayCastMapConfig)
+    gaze: GazeConfig = dc.field(default_factory=GazeConfig)
+    subgoal: SubgoalPipelineConfig = dc.field(default_factory=SubgoalPipelineConfig)
+    behaviour: BehaviourConfig = dc.field(default_factory=BehaviourConfig)
+    policy_system: SubgoalPolicyConfig = dc.field(default_factory=SubgoalPolicyConfig)
+    planner: PlannerSystemConfig = dc.field(default_factory=PlannerSystemConfig)
+    tracker: TrackerConfig = dc.field(default_factory=TrackerConfig)
     scripted: ScriptedDriverConfig = dc.field(default_factory=ScriptedDriverConfig)
-    #: Scripted waypoints [[x, y], ...]; empty = towards the target, stopping short.
     waypoints: list[list[float]] = dc.field(default_factory=list)
-    #: Period of the command integrator [s].
     command_period: float = 0.01
+
+    def validate(self) -> None:
+        """Raises ValueError naming the bad field."""
+        if self.policy not in POLICIES:
+            raise ValueError(f"DiagramConfig.policy: unknown policy '{self.policy}' (known: {', '.join(POLICIES)})")
+        if self.strategy not in STRATEGIES:
+            raise ValueError(f"DiagramConfig.strategy: unknown strategy '{self.strategy}' "
+                             f"(known: {', '.join(STRATEGIES)})")
+        if self.policy == "full" and not self.world.enable_camera:
+            raise ValueError("DiagramConfig.world.enable_camera: the full system needs the head camera")
+        self.gaze.validate()
 
 
 @dc.dataclass
 class EpisodeDiagram:
-    """The built diagram and handles to its systems."""
+    """The built diagram and handles to its systems (None where the policy has none)."""
 
     diagram: Diagram
     world: World
+    config: DiagramConfig
     monitor: EpisodeMonitor
     command: RobotCommandIntegrator
     robot_state: RobotStateSelector
     obstacles: DynamicObstacleDriver
-    depth: DepthSampler | None
     policy: object
     timings: ModuleTimings
+    depth: DepthSampler | None = None
+    point_map: RayCastMap | None = None
+    planner: PlannerSystem | None = None
+    tracker: WholeBodyTracker | None = None
+    gaze: GazeOptimizer | None = None
     visualizer: MeshcatVisualizer | None = None
 
 
@@ -96,8 +158,7 @@ def _filter_obstacles_against_scene(world: World) -> None:
 def build_diagram(scenario: Scenario, config: DiagramConfig | None = None, meshcat: Meshcat | None = None) -> EpisodeDiagram:
     """Builds the episode diagram for `scenario`."""
     config = config or DiagramConfig()
-    if config.policy not in POLICIES:
-        raise ValueError(f"DiagramConfig.policy: unknown policy '{config.policy}' (known: {', '.join(POLICIES)})")
+    config.validate()
     builder = DiagramBuilder()
     timings = ModuleTimings()
     world = build_world(builder, scenario, config.world)
@@ -121,28 +182,93 @@ def build_diagram(scenario: Scenario, config: DiagramConfig | None = None, meshc
     for name, handle in world.scene.obstacles.items():
         builder.Connect(obstacles.GetOutputPort(f"{name}_desired_state"), plant.get_desired_state_input_port(handle.model_instance))
 
-    depth = None
-    if world.camera is not None:
-        depth = builder.AddNamedSystem("depth_sampler", DepthSampler(config.world.camera.period, timings))
-        builder.Connect(world.camera.depth_image_32F_output_port(), depth.GetInputPort("depth_image"))
-        builder.Connect(world.camera.body_pose_in_world_output_port(), depth.GetInputPort("X_WC"))
-
-    waypoints = np.asarray(config.waypoints, float) if config.waypoints else default_waypoints(scenario)
-    policy = builder.AddNamedSystem("scripted_driver", ScriptedDriver(waypoints, config.scripted))
-    builder.Connect(robot_state.GetOutputPort("configuration"), policy.GetInputPort("robot_configuration"))
-    for port in ("base_velocity", "joint_velocity", "head_command", "gripper_command"):
-        builder.Connect(policy.GetOutputPort(port), command.GetInputPort(port))
-
     monitor = builder.AddNamedSystem("monitor", EpisodeMonitor(world, scenario.time_limit, config.monitor))
     builder.Connect(world.scene_graph.get_query_output_port(), monitor.GetInputPort("query_object"))
     builder.Connect(plant.get_state_output_port(), monitor.GetInputPort("plant_state"))
-    builder.Connect(policy.GetOutputPort("gripper_command"), monitor.GetInputPort("gripper_command"))
 
-    visualizer = None
+    ed = EpisodeDiagram(None, world, config, monitor, command, robot_state, obstacles, None, timings)
+    if config.policy == "scripted":
+        _add_scripted_policy(builder, ed, scenario)
+    else:
+        _add_full_system(builder, ed, scenario)
+
     if meshcat is not None:
-        visualizer = MeshcatVisualizer.AddToBuilder(
+        ed.visualizer = MeshcatVisualizer.AddToBuilder(
             builder, world.scene_graph, meshcat, MeshcatVisualizerParams(role=Role.kIllustration, publish_period=0.05)
         )
-    diagram = builder.Build()
-    diagram.set_name("vamg_episode")
-    return EpisodeDiagram(diagram, world, monitor, command, robot_state, obstacles, depth, policy, timings, visualizer)
+    ed.diagram = builder.Build()
+    ed.diagram.set_name("vamg_episode")
+    return ed
+
+
+def _add_scripted_policy(builder: DiagramBuilder, ed: EpisodeDiagram, scenario: Scenario) -> None:
+    config, world = ed.config, ed.world
+    if world.camera is not None:
+        ed.depth = builder.AddNamedSystem("depth_sampler", DepthSampler(config.world.camera.period, ed.timings))
+        builder.Connect(world.camera.depth_image_32F_output_port(), ed.depth.GetInputPort("depth_image"))
+        builder.Connect(world.camera.body_pose_in_world_output_port(), ed.depth.GetInputPort("X_WC"))
+    waypoints = np.asarray(config.waypoints, float) if config.waypoints else default_waypoints(scenario)
+    ed.policy = builder.AddNamedSystem("scripted_driver", ScriptedDriver(waypoints, config.scripted))
+    builder.Connect(ed.robot_state.GetOutputPort("configuration"), ed.policy.GetInputPort("robot_configuration"))
+    for port in ("base_velocity", "joint_velocity", "head_command", "gripper_command"):
+        builder.Connect(ed.policy.GetOutputPort(port), ed.command.GetInputPort(port))
+    builder.Connect(ed.policy.GetOutputPort("gripper_command"), ed.monitor.GetInputPort("gripper_command"))
+
+
+def _add_full_system(builder: DiagramBuilder, ed: EpisodeDiagram, scenario: Scenario) -> None:
+    config, world, timings = ed.config, ed.world, ed.timings
+    camera = world.camera
+    period = config.world.camera.period
+    q = ed.robot_state.GetOutputPort("whole_body_configuration")
+    depth_image, X_WC = camera.depth_image_32F_output_port(), camera.body_pose_in_world_output_port()
+    target = builder.AddNamedSystem("target", ConstantVectorSource(np.asarray(scenario.target_point(), float)))
+
+    point_map = builder.AddNamedSystem("raycast_map", RayCastMap(world.intrinsics, config.map, period, timings=timings))
+    builder.Connect(depth_image, point_map.GetInputPort("depth_image"))
+    builder.Connect(X_WC, point_map.GetInputPort("X_WC"))
+    builder.Connect(q, point_map.GetInputPort("robot_configuration"))
+
+    cloud = builder.AddNamedSystem("target_cloud", TargetCloud(world.intrinsics, period=period))
+    builder.Connect(depth_image, cloud.GetInputPort("depth_image"))
+    builder.Connect(X_WC, cloud.GetInputPort("X_WC"))
+    builder.Connect(target.get_output_port(), cloud.GetInputPort("target"))
+
+    policy = builder.AddNamedSystem("subgoal_policy", make_subgoal_policy(
+        config.subgoal, config.behaviour, config.policy_system, seed=config.seed, timings=timings))
+    planner = builder.AddNamedSystem("planner", PlannerSystem(_seeded_planner_config(config), timings=timings))
+    tracker = builder.AddNamedSystem("tracker", WholeBodyTracker(config.tracker))
+    gaze = builder.AddNamedSystem("gaze", GazeOptimizer(world.intrinsics, config.gaze, period, timings=timings))
+
+    builder.Connect(point_map.GetOutputPort("point_map"), policy.GetInputPort("point_map"))
+    builder.Connect(q, policy.GetInputPort("robot_configuration"))
+    builder.Connect(target.get_output_port(), policy.GetInputPort("target"))
+    builder.Connect(planner.GetOutputPort("motion_feedback"), policy.GetInputPort("motion_feedback"))
+    builder.Connect(cloud.GetOutputPort("target_cloud"), policy.GetInputPort("target_cloud"))
+
+    builder.Connect(policy.GetOutputPort("goal"), planner.GetInputPort("goal"))
+    builder.Connect(point_map.GetOutputPort("point_map"), planner.GetInputPort("point_map"))
+    builder.Connect(q, planner.GetInputPort("robot_configuration"))
+    builder.Connect(target.get_output_port(), planner.GetInputPort("target"))
+
+    trajectory = planner.GetOutputPort("timed_trajectory")
+    builder.Connect(trajectory, tracker.GetInputPort("trajectory"))
+    builder.Connect(q, tracker.GetInputPort("robot_configuration"))
+    builder.Connect(trajectory, gaze.GetInputPort("trajectory"))
+    builder.Connect(q, gaze.GetInputPort("robot_configuration"))
+    builder.Connect(target.get_output_port(), gaze.GetInputPort("target"))
+
+    builder.Connect(tracker.GetOutputPort("base_velocity"), ed.command.GetInputPort("base_velocity"))
+    builder.Connect(tracker.GetOutputPort("joint_velocity"), ed.command.GetInputPort("joint_velocity"))
+    builder.Connect(gaze.GetOutputPort("head_command"), ed.command.GetInputPort("head_command"))
+    builder.Connect(policy.GetOutputPort("gripper_command"), ed.command.GetInputPort("gripper_command"))
+
+    builder.Connect(policy.GetOutputPort("phase"), ed.obstacles.GetInputPort("phase"))
+    builder.Connect(policy.GetOutputPort("gripper_command"), ed.monitor.GetInputPort("gripper_command"))
+    builder.Connect(policy.GetOutputPort("goal"), ed.monitor.GetInputPort("policy_goal"))
+    builder.Connect(planner.GetOutputPort("trajectory"), ed.monitor.GetInputPort("planner_status"))
+    ed.policy, ed.point_map, ed.planner, ed.tracker, ed.gaze = policy, point_map, planner, tracker, gaze
+
+
+def _seeded_planner_config(config: DiagramConfig) -> PlannerSystemConfig:
+    """The planner system's config with the episode's seed."""
+    return dc.replace(config.planner, planner=dc.replace(config.planner.planner, seed=config.seed))

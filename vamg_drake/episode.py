@@ -1,17 +1,18 @@
 """Running one episode headless: simulate, judge, and write the results.
 
 `run_episode` writes into its output directory:
-* `episode.json` — outcome, sim and wall time, base path length, per-module timings;
+* `episode.json` — outcome category (and planning kind), the phase timeline,
+  sim and wall time, base path length, per-module timings;
+* `episode.log` — the systems' log (planner failures with tracebacks, phases);
 * `replay.html` — a self-contained Meshcat recording (open it in a browser);
 * `topdown.png` — the room, furniture, target and the robot's path.
 """
-
-from __future__ import annotations
 
 import dataclasses as dc
 import json
 import logging
 import time
+import traceback
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +20,7 @@ from pydrake.systems.analysis import Simulator
 from tqdm import tqdm
 
 from vamg_drake.diagram import DiagramConfig, build_diagram
-from vamg_drake.world.episode_monitor import TIMEOUT, EpisodeOutcome
+from vamg_drake.world.episode_monitor import PLANNING, EpisodeOutcome
 from vamg_drake.world.scenario import Scenario
 from vamg_drake.world.topdown import plot_topdown
 
@@ -35,12 +36,16 @@ class EpisodeResult:
     policy: str
     status: str
     detail: str
-    sim_time: float
-    wall_time: float
-    real_time_factor: float
-    path_length: float
-    depth_frames: int
-    timings: dict
+    method: str = ""
+    kind: str = ""
+    sim_time: float = 0.0
+    wall_time: float = 0.0
+    real_time_factor: float = 0.0
+    path_length: float = 0.0
+    depth_frames: int = 0
+    timings: dict = dc.field(default_factory=dict)
+    #: [[time, phase, reason], ...] from the subgoal policy.
+    phases: list = dc.field(default_factory=list)
     outputs: dict = dc.field(default_factory=dict)
 
     def to_json(self) -> str:
@@ -57,6 +62,10 @@ def _start_meshcat():
         return None
 
 
+#: Status of an episode whose simulation raised (the traceback is in episode.log).
+ERROR = "error"
+
+
 def run_episode(
     scenario: Scenario,
     config: DiagramConfig | None = None,
@@ -68,8 +77,27 @@ def run_episode(
     """Simulates `scenario` until the monitor ends it (or its time limit)."""
     config = config or DiagramConfig()
     out = Path(out_dir) if out_dir else None
+    handler = None
     if out:
         out.mkdir(parents=True, exist_ok=True)
+        handler = logging.FileHandler(out / "episode.log", mode="w")
+        handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+        handler.setLevel(logging.INFO)
+        root = logging.getLogger()
+        root.addHandler(handler)
+        previous_level = root.level
+        root.setLevel(min(previous_level, logging.INFO) if previous_level else logging.INFO)
+    try:
+        return _run(scenario, config, out, record, progress, chunk)
+    finally:
+        if handler is not None:
+            logging.getLogger().removeHandler(handler)
+            logging.getLogger().setLevel(previous_level)
+            handler.close()
+
+
+def _run(scenario: Scenario, config: DiagramConfig, out: Path | None, record: bool, progress: bool,
+         chunk: float) -> EpisodeResult:
     meshcat = _start_meshcat() if (record and out) else None
     ed = build_diagram(scenario, config, meshcat=meshcat)
     simulator = Simulator(ed.diagram)
@@ -80,7 +108,6 @@ def run_episode(
     monitor_ctx = ed.monitor.GetMyContextFromRoot(context)
     path = []
     wall0 = time.perf_counter()
-    simulator.Initialize()
     t_end = scenario.time_limit + chunk
     bar = tqdm(
         total=round(scenario.time_limit, 1),
@@ -90,37 +117,54 @@ def run_episode(
         bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} sim s [{elapsed}<{remaining}]",
     )
     outcome = EpisodeOutcome()
-    while context.get_time() < t_end:
-        t_next = min(context.get_time() + chunk, t_end)
-        status = simulator.AdvanceTo(t_next)
-        path.append(ed.robot_state.GetOutputPort("configuration").Eval(robot_ctx)[:3].copy())
-        bar.update(round(chunk, 3))
-        outcome = ed.monitor.GetOutputPort("outcome").Eval(monitor_ctx)
-        if outcome.done or status.reason() == status.ReturnReason.kReachedTerminationCondition:
-            break
+    try:
+        simulator.Initialize()
+        while context.get_time() < t_end:
+            t_next = min(context.get_time() + chunk, t_end)
+            status = simulator.AdvanceTo(t_next)
+            path.append(ed.robot_state.GetOutputPort("configuration").Eval(robot_ctx)[:3].copy())
+            bar.update(round(chunk, 3))
+            outcome = ed.monitor.GetOutputPort("outcome").Eval(monitor_ctx)
+            if progress and ed.planner is not None:
+                bar.set_postfix_str(ed.policy.GetOutputPort("phase").Eval(ed.policy.GetMyContextFromRoot(context)))
+            if outcome.done or status.reason() == status.ReturnReason.kReachedTerminationCondition:
+                break
+    except Exception as e:  # noqa: BLE001 - a crash is a recorded outcome, not a lost episode
+        log.error("episode %s: simulation raised at t=%.2f:\n%s", scenario.name, context.get_time(),
+                  traceback.format_exc())
+        outcome = EpisodeOutcome(ERROR, context.get_time(), f"{type(e).__name__}: {e}")
     bar.close()
     wall = time.perf_counter() - wall0
     if not outcome.done:
-        outcome = EpisodeOutcome(TIMEOUT, context.get_time(), "time limit reached")
-    path = np.array(path)
+        outcome = EpisodeOutcome(PLANNING, context.get_time(), "time limit reached", "time_limit")
+    path = np.array(path) if path else np.zeros((0, 3))
     length = float(np.sum(np.linalg.norm(np.diff(path[:, :2], axis=0), axis=1))) if len(path) > 1 else 0.0
     sim_time = context.get_time()
+    phases = []
+    if hasattr(ed.policy, "behaviour"):
+        phases = [[round(t, 3), phase, reason] for t, phase, reason in ed.policy.behaviour.history]
     result = EpisodeResult(
         scenario=scenario.name,
         seed=scenario.seed,
         policy=config.policy,
         status=outcome.status,
         detail=outcome.detail,
+        method=config.method if config.policy == "full" else config.policy,
+        kind=outcome.kind,
         sim_time=sim_time,
         wall_time=wall,
         real_time_factor=sim_time / wall if wall > 0 else float("nan"),
         path_length=length,
         depth_frames=ed.timings.summary().get("depth_render", {}).get("count", 0),
         timings=ed.timings.summary(),
+        phases=phases,
     )
+    log.info("episode %s: %s%s at %.1f s (%s)", scenario.name, outcome.status,
+             f"/{outcome.kind}" if outcome.kind else "", outcome.time, outcome.detail)
     if out:
         topdown = out / "topdown.png"
-        plot_topdown(scenario, path, topdown, title=f"{scenario.name}: {outcome.status} at {outcome.time:.1f} s")
+        title = f"{scenario.name}: {outcome.status}{'/' + outcome.kind if outcome.kind else ''} at {outcome.time:.1f} s"
+        plot_topdown(scenario, path, topdown, title=title)
         result.outputs["topdown"] = str(topdown)
         if ed.visualizer is not None and meshcat is not None:
             ed.visualizer.StopRecording()
@@ -128,6 +172,7 @@ def run_episode(
             replay = out / "replay.html"
             replay.write_text(meshcat.StaticHtml())
             result.outputs["replay"] = str(replay)
+        result.outputs["log"] = str(out / "episode.log")
         (out / "episode.json").write_text(result.to_json())
         result.outputs["episode"] = str(out / "episode.json")
     return result

@@ -114,7 +114,7 @@ class TrackerConfig:
     q_diag: list[float] = dc.field(default_factory=lambda: [20.0, 20.0, 15.0] + [12.0] * 8)
     r_diag: list[float] = dc.field(default_factory=lambda: [0.5, 0.8] + [1.0] * 8)
     gain: float = 2.5
-    lookahead_time: float = 0.4
+    lookahead_time: float = 0.3
     resample_dt: float = 0.02
     max_resampled_waypoints: int = 20000
     search_window_time: float = 2.0

@@ -74,6 +74,14 @@ class TimedTrajectory:
         object.__setattr__(self, "times", times)
         object.__setattr__(self, "q", q)
 
+    def __copy__(self) -> "TimedTrajectory":
+        return self  # immutable (frozen, read-only arrays): copies may share it
+
+    def __deepcopy__(self, memo) -> "TimedTrajectory":
+        # Drake copies abstract port and state values; sharing keeps the
+        # trajectory's identity, which consumers use to notice a new plan.
+        return self
+
     @property
     def num_waypoints(self) -> int:
         return int(self.times.shape[0])

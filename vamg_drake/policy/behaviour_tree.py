@@ -21,7 +21,7 @@ close the gripper, lift (torso up). Runtime recovery (``MotionEvent``):
   Pre-grasp), a stage that failed ``max_motion_failures`` times is skipped;
   more than ``max_total_failures`` failures end the episode (PLANNING).
 * INVALIDATED -- the goal is resampled from the top, without counting a failure
-  (bounded by ``max_invalidations``).
+  or using up the stage's goal budget (bounded by ``max_invalidations``).
 
 Pre-grasp and observe goals are budgeted (``max_pregrasp_goals``,
 ``max_observe_goals``) so the tree cannot cycle forever; when every stage is
@@ -331,6 +331,10 @@ class SubgoalBehaviour:
                 self._terminate(inputs, FailureCategory.PLANNING, "the map invalidated the goal too often")
             else:
                 need_goal = self.phase not in (Phase.GRASP_CLOSE, Phase.GRASP_LIFT)
+                # A goal the map invalidated does not use up its stage's goal budget.
+                stage = {Phase.PREGRASP: Stage.PREGRASP, Phase.OBSERVE: Stage.OBSERVE}.get(self.phase)
+                if need_goal and stage is not None and self._state.goals_issued[stage] > 0:
+                    self._state.goals_issued[stage] -= 1
                 self._transition(inputs, self.phase, "goal invalidated by the map: resampling")
         if self.phase == Phase.GRASP_CLOSE and self.close_started is not None:
             if inputs.time - self.close_started >= self.config.close_duration:

@@ -19,6 +19,7 @@ lies within the arm's reach of it.
 """
 
 import dataclasses as dc
+import time
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -75,8 +76,11 @@ class SubgoalPipeline:
         grasp_source: GraspCandidateSource | None = None,
         config: SubgoalPipelineConfig | None = None,
         seed: int = 0,
+        timings=None,
     ) -> None:
         self.config = config or SubgoalPipelineConfig()
+        #: Optional `vamg_drake.systems.timing.ModuleTimings` (grasp candidates, samplers).
+        self.timings = timings
         self.maps = maps
         self.grasp_source = grasp_source or AntipodalGraspSampler()
         self.ik = FastIk()
@@ -89,7 +93,19 @@ class SubgoalPipeline:
         self._cache: tuple | None = None
 
     def samplers(self) -> SubgoalSamplers:
-        return SubgoalSamplers(self.sample_grasp, self.sample_pregrasp, self.sample_observe)
+        return SubgoalSamplers(self._timed("subgoal_grasp", self.sample_grasp),
+                               self._timed("subgoal_pregrasp", self.sample_pregrasp),
+                               self._timed("subgoal_observe", self.sample_observe))
+
+    def _timed(self, name: str, sampler):
+        def timed(inputs: PolicyInputs) -> SubgoalProposal:
+            t0 = time.perf_counter()
+            try:
+                return sampler(inputs)
+            finally:
+                if self.timings is not None:
+                    self.timings.add(name, 1e3 * (time.perf_counter() - t0))
+        return timed
 
     # -- shared pieces ------------------------------------------------------
 
@@ -171,7 +187,10 @@ class SubgoalPipeline:
         if inputs.p_WS is not None and len(inputs.p_WS):
             dense = np.asarray(inputs.p_WS, dtype=float).reshape(-1, 3)
             cloud = np.concatenate([dense[np.linalg.norm(dense - p_WT, axis=1) <= self.config.grasp_cloud_radius], cloud])
+        t0 = time.perf_counter()
         candidates = self.grasp_source.propose(cloud, p_WT, self.rng)
+        if self.timings is not None:
+            self.timings.add("grasp_candidates", 1e3 * (time.perf_counter() - t0))
         if len(candidates) == 0:
             return SubgoalProposal.failure(f"no grasp candidates: {candidates.failure_reason}", FailureCategory.PERCEPTION)
         X_WB = base_poses(q)[0]

@@ -23,7 +23,7 @@ import numba
 import numpy as np
 import yaml
 
-from vamg_drake.robot import kinematics
+from vamg_drake.robot import kinematics, layout
 from vamg_drake.robot.kinematics import FetchKinematics, _parse_origin
 
 SPHERES_YAML = kinematics.MODELS_DIR / "fetch" / "spheres.yaml"
@@ -247,6 +247,51 @@ def _finger_sweep_box(urdf_path: Path | None = None) -> tuple[np.ndarray, np.nda
     return 0.5 * (lo + hi), 0.5 * (hi - lo)
 
 
+#: The head links, replaced in self-collision by the cylinder they sweep over
+#: the whole pan/tilt range (the gaze moves the head while the arm moves).
+HEAD_LINKS = ("head_pan_link", "head_tilt_link")
+
+
+def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    """(4, 4) rotation about a unit axis."""
+    from scipy.spatial.transform import Rotation
+
+    X = np.eye(4)
+    X[:3, :3] = Rotation.from_rotvec(np.asarray(axis, float) * angle).as_matrix()
+    return X
+
+
+def _head_sweep_cylinder(urdf_path: Path | None = None, samples: int = 73, margin: float = 0.005) -> dict:
+    """The cylinder about the pan axis, in the pan joint's parent link frame,
+    that holds the head links' collision boxes at every pan and tilt."""
+    tree = kinematics.parse_kinematic_tree(urdf_path)
+    pan, tilt = tree.index("head_pan_link"), tree.index("head_tilt_link")
+    lim = {"head_pan_link": layout.HEAD_PAN_LIMITS, "head_tilt_link": layout.HEAD_TILT_LIMITS}
+    points = []
+    for prim in collision_primitives(urdf_path):
+        if prim["link"] not in HEAD_LINKS:
+            continue
+        half = prim["half"] if prim["kind"] == "box" else np.array([prim["radius"]] * 2 + [prim["length"] / 2])
+        corners = np.array(list(itertools.product(*[(-h, h) for h in half])))
+        p_L = (prim["X_LS"] @ np.c_[corners, np.ones(len(corners))].T)
+        # Pan rotates about the axis (radius and height unchanged): sample tilt only.
+        for a_tilt in np.linspace(*lim["head_tilt_link"], samples):
+            X = tree.X_PJ[pan]
+            if prim["link"] == "head_tilt_link":
+                X = X @ tree.X_PJ[tilt] @ _rotation(tree.axis[tilt], a_tilt)
+            points.append((X @ p_L)[:3].T)
+            if prim["link"] == "head_pan_link":
+                break
+    p = np.concatenate(points)  # in the pan joint's parent frame, pan = 0
+    axis_xy = tree.X_PJ[pan][:2, 3]
+    radius = float(np.max(np.linalg.norm(p[:, :2] - axis_xy, axis=1))) + margin
+    z_lo, z_hi = float(p[:, 2].min()) - margin, float(p[:, 2].max()) + margin
+    X_LS = np.eye(4)
+    X_LS[:3, 3] = [axis_xy[0], axis_xy[1], 0.5 * (z_lo + z_hi)]
+    parent = tree.link_names[tree.parent[pan]]
+    return dict(link=parent, kind="cylinder", X_LS=X_LS, half=[radius, radius, 0.5 * (z_hi - z_lo)])
+
+
 def fit_spheres(urdf_path: Path | None = None) -> dict:
     """Fits spheres to the URDF collision primitives; returns the YAML document."""
     rows = []
@@ -268,11 +313,15 @@ def fit_spheres(urdf_path: Path | None = None) -> dict:
     links = [r["link"] for r in rows]
     pairs = _self_collision_pairs(links, urdf_path)
     body = []
+
+    def partners_of(link_names) -> list[int]:
+        partners = sorted({b if links[a] in link_names else a for a, b in pairs
+                           if links[a] in link_names or links[b] in link_names})
+        return [k for k in partners if links[k] not in BODY_LINKS]
+
     for prim in collision_primitives(urdf_path):
-        if prim["link"] not in BODY_LINKS:
+        if prim["link"] not in BODY_LINKS or prim["link"] in HEAD_LINKS:
             continue
-        partners = sorted({b if links[a] == prim["link"] else a for a, b in pairs if prim["link"] in (links[a], links[b])})
-        partners = [k for k in partners if links[k] not in BODY_LINKS]
         if prim["kind"] == "box":
             half = [float(v) for v in prim["half"]]
         else:
@@ -283,9 +332,12 @@ def fit_spheres(urdf_path: Path | None = None) -> dict:
                 kind=prim["kind"],
                 X_LS=[round(float(v), 9) for v in prim["X_LS"].ravel()],
                 half=half,
-                spheres=partners,
+                spheres=partners_of((prim["link"],)),
             )
         )
+    head = _head_sweep_cylinder(urdf_path)
+    body.append(dict(link=head["link"], kind="cylinder", X_LS=[round(float(v), 9) for v in head["X_LS"].ravel()],
+                     half=[round(float(v), 6) for v in head["half"]], spheres=partners_of(HEAD_LINKS)))
     # Body-vs-arm pairs are tested on the exact primitives; body-vs-body
     # pairs are fixed relative to each other (apart from the head, filtered).
     pairs = [p for p in pairs if links[p[0]] not in BODY_LINKS and links[p[1]] not in BODY_LINKS]

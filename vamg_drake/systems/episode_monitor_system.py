@@ -7,7 +7,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.geometry import QueryObject
 from pydrake.systems.framework import EventStatus, LeafSystem
 
-from vamg_drake.world.episode_monitor import Contact, EpisodeJudge, EpisodeMonitorConfig, EpisodeOutcome
+from vamg_drake.world.episode_monitor import Contact, EpisodeJudge, EpisodeMonitorConfig, EpisodeOutcome, PolicyReport
 from vamg_drake.world.world_builder import World
 
 
@@ -18,6 +18,8 @@ class EpisodeMonitor(LeafSystem):
         query_object: the scene graph's query object.
         plant_state: the plant's state.
         gripper_command: the commanded opening (closing starts the grasp).
+        policy_goal: the SubgoalPolicy's `SubgoalCommand` (optional).
+        planner_status: the planner's `PlannedTrajectory` (optional).
     Output ports:
         outcome: `EpisodeOutcome` (AbstractValue).
 
@@ -50,11 +52,21 @@ class EpisodeMonitor(LeafSystem):
         self.DeclareAbstractInputPort("query_object", AbstractValue.Make(QueryObject()))
         self.DeclareVectorInputPort("plant_state", plant.num_multibody_states())
         self.DeclareVectorInputPort("gripper_command", 1)
+        self._policy_port = self.DeclareAbstractInputPort("policy_goal", AbstractValue.Make(None))
+        self._planner_port = self.DeclareAbstractInputPort("planner_status", AbstractValue.Make(None))
         self._outcome = self.DeclareAbstractState(AbstractValue.Make(EpisodeOutcome()))
         self._grasp_started = self.DeclareAbstractState(AbstractValue.Make(False))
         self.DeclarePeriodicUnrestrictedUpdateEvent(self.config.period, 0.0, self._tick)
         self.DeclareStateOutputPort("outcome", self._outcome)
         self.min_gripper_command = np.inf
+
+    def _report(self, context) -> PolicyReport | None:
+        goal = self._policy_port.Eval(context) if self._policy_port.HasValue(context) else None
+        if goal is None:
+            return None
+        plan = self._planner_port.Eval(context) if self._planner_port.HasValue(context) else None
+        return PolicyReport(goal.phase.value, goal.failure.value, goal.reason,
+                            getattr(plan, "error", "") if plan is not None else "")
 
     def _tick(self, context, state) -> EventStatus:
         query: QueryObject = self.get_input_port(0).Eval(context)
@@ -80,7 +92,7 @@ class EpisodeMonitor(LeafSystem):
                     depth=pair.depth,
                 )
             )
-        outcome = self.judge.update(context.get_time(), contacts, target_height, grasp_started)
+        outcome = self.judge.update(context.get_time(), contacts, target_height, grasp_started, self._report(context))
         state.get_mutable_abstract_state(self._outcome).set_value(outcome)
         state.get_mutable_abstract_state(self._grasp_started).set_value(grasp_started)
         if outcome.done:

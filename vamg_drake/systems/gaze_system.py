@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import time
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -12,6 +13,7 @@ from vamg_drake.perception.gaze import FetchGazeCameras, GazeConfig, GazeOptimiz
 from vamg_drake.perception.trajectory_sweep import TrajectorySweep
 from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics
+from vamg_drake.systems.timing import ModuleTimings
 
 _log = logging.getLogger(__name__)
 
@@ -35,8 +37,10 @@ class GazeOptimizer(LeafSystem):
     malformed trajectory) is logged and the previous command is held.
     """
 
-    def __init__(self, intrinsics: CameraIntrinsics, config: GazeConfig | None = None, period: float = 0.1):
+    def __init__(self, intrinsics: CameraIntrinsics, config: GazeConfig | None = None, period: float = 0.1,
+                 timings: ModuleTimings | None = None):
         super().__init__()
+        self._timings = timings
         self._core = GazeOptimizerCore(intrinsics, config)
         self._cameras = FetchGazeCameras(self._core.candidates)
         self._trajectory_port = self.DeclareAbstractInputPort("trajectory", AbstractValue.Make(None))
@@ -72,9 +76,12 @@ class GazeOptimizer(LeafSystem):
             p = np.asarray(self._target_port.Eval(context), dtype=float)
             target = p if np.all(np.isfinite(p)) else None
         t_now = float(self._time_port.Eval(context)[0]) if self._time_port.HasValue(context) else context.get_time()
+        t0 = time.perf_counter()
         try:
             sweep = self._sweep_cache.Eval(context)
             decision = decide_fetch_gaze(self._core, q, target, sweep, t_now, self._cameras)
+            if self._timings is not None:
+                self._timings.add("gaze", 1e3 * (time.perf_counter() - t0))
         except ValueError as e:
             _log.error("GazeOptimizer: input rejected, holding the previous head command: %s", e)
             return EventStatus.Succeeded()

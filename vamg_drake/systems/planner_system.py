@@ -162,7 +162,11 @@ class MotionSupervisor:
             return plan, MotionEvent.NONE
         if not periodic:
             rest = remaining_path(plan.trajectory, q)
-            if self.planner.trajectory_is_valid(TimedTrajectory(np.arange(len(rest), dtype=float), rest)):
+            t0 = time.perf_counter()
+            valid = self.planner.trajectory_is_valid(TimedTrajectory(np.arange(len(rest), dtype=float), rest))
+            if self.timings is not None:
+                self.timings.add("trajectory_check", 1e3 * (time.perf_counter() - t0))
+            if valid:
                 return dc.replace(plan, map_revision=revision), MotionEvent.NONE
         if not periodic:
             if plan.replans >= cfg.max_replans:
@@ -174,12 +178,18 @@ class MotionSupervisor:
         if periodic:
             # The baseline keeps executing the old plan when a periodic replan fails.
             return (new if new.success else dc.replace(plan, map_revision=revision)), MotionEvent.NONE
-        return new, (MotionEvent.INVALIDATED if new.success else MotionEvent.FAILED)
+        return new, (MotionEvent.INVALIDATED if new.success else self._failure_event(new))
+
+    @staticmethod
+    def _failure_event(plan: PlannedTrajectory) -> MotionEvent:
+        """A goal that the map has put in collision is invalidated (the policy
+        resamples without counting a motion failure); other failures are FAILED."""
+        return MotionEvent.INVALIDATED if plan.reason == FailureReason.GOAL_IN_COLLISION else MotionEvent.FAILED
 
     def _start(self, goal: SubgoalCommand, q: np.ndarray, t: float, revision: int) -> tuple[PlannedTrajectory, MotionEvent]:
         if goal.motion == "plan":
             plan = self._plan(goal, q, t, revision)
-            return plan, (MotionEvent.NONE if plan.success else MotionEvent.FAILED)
+            return plan, (MotionEvent.NONE if plan.success else self._failure_event(plan))
         if goal.motion == "linear":
             try:
                 traj = linear_trajectory(q, np.asarray(goal.q_goal, float), t, self.config.linear_speed_fraction)

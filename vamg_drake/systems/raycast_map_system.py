@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import time
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -13,6 +14,7 @@ from pydrake.systems.sensors import ImageDepth32F
 from vamg_drake.perception.raycast_map import PointMap, RayCastMapConfig
 from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics
+from vamg_drake.systems.timing import ModuleTimings
 
 _log = logging.getLogger(__name__)
 
@@ -62,10 +64,12 @@ class RayCastMap(LeafSystem):
         config: RayCastMapConfig | None = None,
         period: float = 0.1,
         self_filter: bool = True,
+        timings: ModuleTimings | None = None,
     ):
         super().__init__()
         self._intrinsics = intrinsics
         self._config = config or RayCastMapConfig()
+        self._timings = timings
         self._spheres = None
         if self_filter:
             from vamg_drake.robot.spheres import SphereModel
@@ -95,7 +99,9 @@ class RayCastMap(LeafSystem):
 
     def _update(self, context, state) -> EventStatus:
         core: PointMap = state.get_mutable_abstract_state(self._core_index).get_mutable_value().map
-        depth = self._depth_port.Eval(context).data
+        t0 = time.perf_counter()
+        depth = self._depth_port.Eval(context).data  # renders the camera image
+        t1 = time.perf_counter()
         X_WC = self._pose_port.Eval(context).GetAsMatrix4()
         centers = radii = None
         if self._spheres is not None:
@@ -105,6 +111,9 @@ class RayCastMap(LeafSystem):
             else:
                 centers, radii = np.full((1, 3), np.nan), np.ones(1)  # the core logs and rejects
         stats = core.update(depth, X_WC, centers, radii)
+        if self._timings is not None:
+            self._timings.add("depth_render", 1e3 * (t1 - t0))
+            self._timings.add("map_update", 1e3 * (time.perf_counter() - t1))
         if stats.ok and (stats.num_added or stats.num_carved):
             state.get_mutable_abstract_state(self._snapshot_index).set_value(core.snapshot())
         return EventStatus.Succeeded()

@@ -5,13 +5,16 @@ from __future__ import annotations
 import numpy as np
 from pydrake.systems.framework import BasicVector, LeafSystem
 
+from vamg_drake.robot import layout
 from vamg_drake.robot.kinematics import NX
 
 
 class RobotStateSelector(LeafSystem):
-    """Input: plant_state (full). Outputs: configuration (15,), velocity (15,).
+    """Input: plant_state (full). Outputs: configuration (15,), velocity (15,),
+    whole_body_configuration (11,).
 
-    Both in `kinematics.EXTENDED_JOINTS` order: q (11), head (2), fingers (2).
+    The first two in `kinematics.EXTENDED_JOINTS` order: q (11), head (2),
+    fingers (2); the last is q alone (`layout.WHOLE_BODY_JOINTS`).
     """
 
     def __init__(self, num_positions: int, num_velocities: int, position_index: np.ndarray, velocity_index: np.ndarray):
@@ -22,9 +25,13 @@ class RobotStateSelector(LeafSystem):
         self.DeclareVectorInputPort("plant_state", num_positions + num_velocities)
         self.DeclareVectorOutputPort("configuration", NX, self._calc_q)
         self.DeclareVectorOutputPort("velocity", NX, self._calc_v)
+        self.DeclareVectorOutputPort("whole_body_configuration", layout.NQ, self._calc_q11)
 
     def _calc_q(self, context, output: BasicVector) -> None:
         output.SetFromVector(self.get_input_port(0).Eval(context)[self._qi])
+
+    def _calc_q11(self, context, output: BasicVector) -> None:
+        output.SetFromVector(self.get_input_port(0).Eval(context)[self._qi[: layout.NQ]])
 
     def _calc_v(self, context, output: BasicVector) -> None:
         output.SetFromVector(self.get_input_port(0).Eval(context)[self._nq + self._vi])

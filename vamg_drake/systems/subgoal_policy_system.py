@@ -137,7 +137,12 @@ def make_subgoal_policy(
     config: SubgoalPolicyConfig | None = None,
     maps: KinematicMaps | None = None,
     seed: int = 0,
+    timings=None,
 ) -> SubgoalPolicy:
-    """The SubgoalPolicy over the real samplers (kinematic maps built on first use)."""
-    pipeline = SubgoalPipeline(maps or KinematicMaps.load_or_build(), config=pipeline_config, seed=seed)
+    """The SubgoalPolicy over the real samplers (kinematic maps built on first use).
+
+    ``timings`` (a `ModuleTimings`) collects the samplers' and the grasp candidates' costs.
+    """
+    pipeline = SubgoalPipeline(maps or KinematicMaps.load_or_build(), config=pipeline_config, seed=seed,
+                               timings=timings)
     return SubgoalPolicy(SubgoalBehaviour(pipeline.samplers(), behaviour_config), config)

@@ -1,19 +1,65 @@
-"""The episode judge: collision, success, time limit (paper appendix "Evaluation Metrics").
+"""The episode judge: outcome categories (paper appendix "Evaluation Metrics"
+and "Failure Analysis").
 
 `EpisodeJudge` is the plain core: it is fed, at each monitor tick, the time,
-the robot's contacts and the target's height, and decides the outcome.
+the robot's contacts, the target's height and what the policy and the planner
+report, and decides the outcome. The statuses are the paper's categories:
+
+* ``success``: the target lifted >= `lift_height` and held `hold_time`;
+* ``collision``: a robot link other than the fingers touched something (the
+  palm may touch the target once the grasp has begun);
+* ``grasp``: the policy finished its lift but the target was not held up
+  within `grasp_verdict_time` (slipped, dropped, or never enclosed);
+* ``ik``, ``reachability``, ``perception``: the subgoal policy gave up for
+  that reason;
+* ``planning``: the policy gave up after motion failures (kind ``timeout``),
+  no subgoal could be sampled (kind ``subgoal``), the planner raised (kind
+  ``exception``), or the episode's time limit passed (kind ``time_limit``).
+
 `vamg_drake.systems.episode_monitor_system.EpisodeMonitor` is its LeafSystem.
 """
 
 
 import dataclasses as dc
 
-#: Outcome statuses decided by the judge (the policy adds the other paper
-#: categories: grasp, ik, reachability, perception, planning).
 RUNNING = "running"
 SUCCESS = "success"
 COLLISION = "collision"
-TIMEOUT = "timeout"
+GRASP = "grasp"
+IK = "ik"
+REACHABILITY = "reachability"
+PERCEPTION = "perception"
+PLANNING = "planning"
+#: Every final status, in the column order of the paper's results table.
+CATEGORIES = (SUCCESS, COLLISION, GRASP, IK, REACHABILITY, PERCEPTION, PLANNING)
+#: Kinds of planning failure (`EpisodeOutcome.kind`).
+PLANNING_KINDS = ("timeout", "subgoal", "exception", "time_limit")
+
+#: Policy failure category (`FailureCategory.value`) -> (status, kind).
+_POLICY_FAILURES = {
+    "reachability": (REACHABILITY, ""),
+    "perception": (PERCEPTION, ""),
+    "ik": (IK, ""),
+    "planning": (PLANNING, "timeout"),
+    "subgoal": (PLANNING, "subgoal"),
+}
+
+
+@dc.dataclass(frozen=True)
+class PolicyReport:
+    """What the policy and the motion layer report to the judge.
+
+    Attributes:
+        phase: the policy's phase value ("idle", "grasp_lift", "succeeded", "failed", ...).
+        failure: its failure category value when failed ("reachability", ...).
+        reason: its last reason.
+        planner_error: the planner's exception text, if it raised.
+    """
+
+    phase: str = "idle"
+    failure: str = ""
+    reason: str = ""
+    planner_error: str = ""
 
 
 @dc.dataclass
@@ -28,6 +74,9 @@ class EpisodeMonitorConfig:
     penetration_tolerance: float = 1e-4
     #: Monitor period [s].
     period: float = 0.05
+    #: After the policy reports its lift done, the target must be held up
+    #: within this long or the episode is a grasp failure [s].
+    grasp_verdict_time: float = 4.0
 
 
 @dc.dataclass(frozen=True)
@@ -54,14 +103,16 @@ class EpisodeOutcome:
     """The judge's verdict so far.
 
     Attributes:
-        status: RUNNING, SUCCESS, COLLISION or TIMEOUT.
+        status: RUNNING or one of CATEGORIES.
         time: sim time of the verdict [s] (of the last tick while running).
         detail: human-readable detail (what collided with what, ...).
+        kind: for PLANNING, one of PLANNING_KINDS.
     """
 
     status: str = RUNNING
     time: float = 0.0
     detail: str = ""
+    kind: str = ""
 
     @property
     def done(self) -> bool:
@@ -74,7 +125,7 @@ GRIPPER_LINKS = ("gripper_link",) + FINGER_LINKS
 
 
 class EpisodeJudge:
-    """Decides collision / success / time-out from what happened."""
+    """Decides the outcome category from what happened."""
 
     def __init__(self, target_rest_height: float, time_limit: float, config: EpisodeMonitorConfig | None = None):
         self.config = config or EpisodeMonitorConfig()
@@ -82,9 +133,11 @@ class EpisodeJudge:
         self.time_limit = time_limit
         self.outcome = EpisodeOutcome()
         self._lift_since: float | None = None
+        self._lift_done_at: float | None = None
         self.max_lift = 0.0
 
-    def update(self, time: float, contacts: list[Contact], target_height: float, grasp_started: bool) -> EpisodeOutcome:
+    def update(self, time: float, contacts: list[Contact], target_height: float, grasp_started: bool,
+               policy: PolicyReport | None = None) -> EpisodeOutcome:
         """Feeds one tick; returns the (possibly final) outcome."""
         if self.outcome.done:
             return self.outcome
@@ -107,8 +160,27 @@ class EpisodeJudge:
                 return self.outcome
         else:
             self._lift_since = None
+        if policy is not None:
+            verdict = self._policy_verdict(time, policy, lift)
+            if verdict is not None:
+                self.outcome = verdict
+                return self.outcome
         if time >= self.time_limit:
-            self.outcome = EpisodeOutcome(TIMEOUT, time, f"time limit {self.time_limit} s reached")
+            self.outcome = EpisodeOutcome(PLANNING, time, f"time limit {self.time_limit} s reached", "time_limit")
             return self.outcome
         self.outcome = EpisodeOutcome(RUNNING, time, "")
         return self.outcome
+
+    def _policy_verdict(self, time: float, policy: PolicyReport, lift: float) -> EpisodeOutcome | None:
+        if policy.planner_error:
+            return EpisodeOutcome(PLANNING, time, f"planner raised: {policy.planner_error}", "exception")
+        if policy.phase == "failed":
+            status, kind = _POLICY_FAILURES.get(policy.failure, (PLANNING, "subgoal"))
+            return EpisodeOutcome(status, time, policy.reason, kind)
+        if policy.phase == "succeeded":
+            if self._lift_done_at is None:
+                self._lift_done_at = time
+            if self._lift_since is None and time - self._lift_done_at >= self.config.grasp_verdict_time:
+                return EpisodeOutcome(GRASP, time, f"lift finished but the target is not held up "
+                                                   f"(lift {lift:.3f} m, max {self.max_lift:.3f} m)")
+        return None
