@@ -243,10 +243,11 @@ class CollisionEnvironment:
             zs = np.arange(max(z_min, -1.0), z_max + h, h)
             test_r = math.hypot(0.5 * math.sqrt(2) * h, 0.5 * h)
             _rasterize_primitives_2d(occ, origin, h, zs, test_r, self.box_p, self.box_R, self.box_half,
-                                     self.cyl_p, self.cyl_R, self.cyl_radius, self.cyl_half_length)
+                                     self.cyl_p, self.cyl_R, self.cyl_radius, self.cyl_half_length,
+                                     float(z_min), float(z_max), 0.5 * math.sqrt(2) * h)
         if not occ.any():
             return np.full((1, 1), 1e6, np.float32), np.zeros(2), h, math.sqrt(2) * h
-        dist = ndimage.distance_transform_edt(~occ, sampling=h).astype(np.float32)
+        dist = edt_2d(occ, float(h))
         # A voxel may stand for an obstacle point up to (sqrt(3)/2) h from its
         # centre (see `voxelized`), which projects up to that far in xy.
         obstacle_term = 0.5 * SQRT3 * h if f is not None and f.num_occupied else 0.5 * math.sqrt(2) * h
@@ -265,10 +266,82 @@ class CollisionEnvironment:
 
 
 @numba.njit(cache=True)
-def _rasterize_primitives_2d(occ, origin, h, zs, test_r, box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl):
+def _edt_1d(f, n, d, v, z):
+    """Squared distance transform of samples f[:n] (Felzenszwalb-Huttenlocher
+    lower envelope of parabolas) into d[:n]; v, z are scratch."""
+    k = 0
+    v[0] = 0
+    z[0] = -np.inf
+    z[1] = np.inf
+    for q in range(1, n):
+        if f[q] == np.inf:
+            continue
+        if f[v[k]] == np.inf:
+            v[k] = q
+            continue
+        while True:
+            p = v[k]
+            sp = ((f[q] + q * q) - (f[p] + p * p)) / (2.0 * q - 2.0 * p)
+            if sp <= z[k]:
+                k -= 1
+                if k < 0:
+                    k = 0
+                    v[0] = q
+                    z[0] = -np.inf
+                    z[1] = np.inf
+                    break
+                continue
+            k += 1
+            v[k] = q
+            z[k] = sp
+            z[k + 1] = np.inf
+            break
+    k = 0
+    for q in range(n):
+        while z[k + 1] < q:
+            k += 1
+        p = v[k]
+        d[q] = (q - p) * (q - p) + f[p]
+
+
+@numba.njit(cache=True)
+def edt_2d(occupied, h):
+    """Euclidean distance [m] from every cell centre of a 2D bool grid to the
+    nearest occupied cell centre (cell size h); inf where nothing is occupied.
+    Exact (separable squared-distance transform), O(cells)."""
+    nx, ny = occupied.shape
+    m = max(nx, ny)
+    f = np.empty(m)
+    d = np.empty(m)
+    v = np.empty(m, dtype=np.int64)
+    z = np.empty(m + 1)
+    g = np.empty((nx, ny))
+    for i in range(nx):
+        for j in range(ny):
+            f[j] = 0.0 if occupied[i, j] else np.inf
+        _edt_1d(f, ny, d, v, z)
+        for j in range(ny):
+            g[i, j] = d[j]
+    out = np.empty((nx, ny), dtype=np.float32)
+    for j in range(ny):
+        for i in range(nx):
+            f[i] = g[i, j]
+        _edt_1d(f, nx, d, v, z)
+        for i in range(nx):
+            out[i, j] = math.sqrt(d[i]) * h
+    return out
+
+
+@numba.njit(cache=True)
+def _rasterize_primitives_2d(occ, origin, h, zs, test_r, box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl,
+                             z_lo, z_hi, flat_r):
     """Marks cells whose centre column passes within test_r of a primitive.
 
     Each primitive only visits the cells of its own xy bounding box.
+    Primitives with a vertical axis (boxes standing upright, upright
+    cylinders) whose z extent meets [z_lo, z_hi] are rasterized exactly: a
+    cell is marked when its centre is within `flat_r` of the footprint
+    rectangle/disc. Others are sampled at heights `zs` (within test_r).
     """
     nz = zs.shape[0]
     P = np.empty((nz, 3))
@@ -293,6 +366,34 @@ def _rasterize_primitives_2d(occ, origin, h, zs, test_r, box_p, box_R, box_half,
         i1 = min(int(math.ceil((cx + ex[0] + test_r - origin[0]) / h)), occ.shape[0] - 1)
         j0 = max(int(math.floor((cy - ex[1] - test_r - origin[1]) / h)), 0)
         j1 = min(int(math.ceil((cy + ex[1] + test_r - origin[1]) / h)), occ.shape[1] - 1)
+        # Upright primitives: the exact footprint test.
+        if k < nb:
+            up = abs(box_R[k, 2, 0]) < 1e-9 and abs(box_R[k, 2, 1]) < 1e-9
+            pz = box_p[k, 2]
+        else:
+            up = abs(abs(cyl_R[k - nb, 2, 2]) - 1.0) < 1e-12
+            pz = cyl_p[k - nb, 2]
+        if up:
+            if pz + ex[2] < z_lo or pz - ex[2] > z_hi:
+                continue
+            rr = flat_r * flat_r
+            for i in range(i0, i1 + 1):
+                gx = origin[0] + i * h - cx
+                for j in range(j0, j1 + 1):
+                    gy = origin[1] + j * h - cy
+                    if k < nb:
+                        d2 = 0.0
+                        for a in range(2):
+                            lc = box_R[k, 0, a] * gx + box_R[k, 1, a] * gy
+                            e = abs(lc) - box_half[k, a]
+                            if e > 0:
+                                d2 += e * e
+                    else:
+                        e = math.sqrt(gx * gx + gy * gy) - cyl_r[k - nb]
+                        d2 = e * e if e > 0 else 0.0
+                    if d2 <= rr:
+                        occ[i, j] = True
+            continue
         for i in range(i0, i1 + 1):
             for j in range(j0, j1 + 1):
                 if occ[i, j]:
@@ -615,6 +716,23 @@ def _sphere_centers(Q, head, parent, X_PJ, joint_type, axis, var_index, sph_link
     return out
 
 
+@numba.njit(cache=True)
+def base_pose_free_exact(x, y, theta, data):
+    """Whole-body validity at base pose (x, y, theta) with the torso/arm of
+    `CollisionChecker.base_pose_check_data` (a tuple it made; numba-callable)."""
+    Q = data[0]
+    Q[0, 0] = x
+    Q[0, 1] = y
+    Q[0, 2] = (theta + math.pi) % (2.0 * math.pi) - math.pi
+    return _config_free(Q, 0, data[6], data[7], data[8], data[9], data[10], data[11],
+                        data[12], data[13], data[14], data[15], data[16], data[17], data[18],
+                        data[1], data[2], data[3],
+                        data[19], data[20], data[21], data[22], data[23],
+                        data[24], data[25], data[26], data[27], data[28], data[29], data[30], data[31],
+                        data[32], data[33], data[34], data[35], data[36], data[37],
+                        data[4], data[5])
+
+
 @functools.lru_cache(maxsize=4096)
 def bisection_order(n: int) -> np.ndarray:
     """Indices 0..n-1 in coarse-to-fine order (endpoints first, then midpoints).
@@ -750,6 +868,22 @@ class CollisionChecker:
                 hf, dist, origin, h, margin,
                 e.box_p, e.box_R, e.box_half, e.cyl_p, e.cyl_R, e.cyl_radius, e.cyl_half_length,
                 self.check_env, *self._body)
+
+    def base_pose_check_data(self, torso_arm: np.ndarray) -> tuple:
+        """The arguments of `base_pose_free_exact` for the torso + arm (8,)
+        held fixed, over the current environment (scratch arrays included:
+        one user at a time)."""
+        torso_arm = np.asarray(torso_arm, dtype=float).reshape(layout.NQ - 3)
+        Q = np.zeros((1, layout.NQ))
+        Q[0, 3:] = torso_arm
+        T = np.empty((self.tree.parent.shape[0], 3, 4))
+        C = np.empty((self.sph_link.shape[0], 3))
+        PW = np.empty((self._body[0].shape[0], 3, 4))
+        e = self.env
+        env_aabb = np.empty((e.box_p.shape[0] + e.cyl_p.shape[0], 6))
+        _env_aabbs(e.box_p, e.box_R, e.box_half, e.cyl_p, e.cyl_R, e.cyl_radius, e.cyl_half_length, env_aabb)
+        near = np.empty(env_aabb.shape[0], dtype=np.int64)
+        return (Q, T, C, PW, env_aabb, near) + tuple(self._args())
 
     def is_free(self, Q: np.ndarray) -> np.ndarray:
         """Validity (B,) of configurations Q (B, 11) (no early exit)."""

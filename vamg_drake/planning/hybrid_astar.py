@@ -1,9 +1,15 @@
 """Hybrid A* for the mobile base on a 2D clearance map, with Reeds-Shepp
 analytic expansions and in-place rotations.
 
-The base is a disc of radius `footprint_radius` (the stowed robot's projected
-outline). A pose is free when the 2D clearance (`Costmap2D`) at its cell,
-minus the map's discretization bound, exceeds that radius. The search runs
+The robot's projection is covered by a few discs fixed in the base frame
+(`Footprint2D`, e.g. the base disc against the obstacles of the low height
+band and the torso/arm disc against those of the high band). A pose is free
+when, for every disc, the 2D clearance of its band (`Costmap2D` layer) at the
+disc centre's cell, minus the map's discretization bound, exceeds its radius.
+Near a start or goal whose footprint touches an obstacle (the robot parked at
+a table), poses are checked exactly instead: the whole-body sphere model
+with the travel arm (`exact_pose_check`, see
+`CollisionChecker.base_pose_check_data`). The search runs
 over (x, y, theta) bins with motion primitives (forward/backward arcs of the
 minimum turning radius and straight segments, plus in-place turns); its
 heuristic is the obstacle-aware 2D Dijkstra distance from the goal. Every few
@@ -19,6 +25,7 @@ import numba
 import numpy as np
 
 from vamg_drake.planning import reeds_shepp as rs
+from vamg_drake.planning.collision import base_pose_free_exact
 from vamg_drake.robot import layout
 
 
@@ -27,7 +34,8 @@ class Costmap2D:
     """Clearance [m] of 2D cell centres from the nearest obstacle cell centre.
 
     Attributes:
-        clearance: (nx, ny) float32.
+        clearance: (nx, ny) float32, or (bands, nx, ny): one layer per
+            height band of obstacles.
         origin: (2,) centre of cell (0, 0).
         resolution: cell size [m].
         margin: discretization bound (sqrt(2) * resolution).
@@ -38,13 +46,54 @@ class Costmap2D:
     resolution: float
     margin: float
 
-    def free_mask(self, radius: float) -> np.ndarray:
-        return self.clearance - self.margin > radius
+    @property
+    def layers(self) -> np.ndarray:
+        """The clearance as (bands, nx, ny)."""
+        c = self.clearance
+        return c[None] if c.ndim == 2 else c
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.layers.shape[1:]
+
+    def free_mask(self, radius: float, band: int = 0) -> np.ndarray:
+        return self.layers[band] - self.margin > radius
 
     def cell(self, xy: np.ndarray) -> tuple[int, int]:
         i = int(math.floor((xy[0] - self.origin[0]) / self.resolution + 0.5))
         j = int(math.floor((xy[1] - self.origin[1]) / self.resolution + 0.5))
         return i, j
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Footprint2D:
+    """Discs that cover the robot's projection, fixed in the base frame.
+
+    Attributes:
+        discs: (K, 3) rows (x, y, radius) [m], centre in the base frame.
+        band: (K,) costmap layer each disc is tested against.
+    """
+
+    discs: np.ndarray
+    band: np.ndarray
+
+    @staticmethod
+    def disc(radius: float) -> "Footprint2D":
+        """One disc about the base origin, against layer 0."""
+        return Footprint2D(np.array([[0.0, 0.0, float(radius)]]), np.zeros(1, np.int64))
+
+    @staticmethod
+    def covering(p_BS: np.ndarray, radius: np.ndarray) -> tuple[float, float]:
+        """(x offset, radius) of the smallest disc centred on the base x axis
+        that covers the xy projections of spheres (p_BS (N, 3), radius (N,))."""
+        xs = np.linspace(p_BS[:, 0].min(), p_BS[:, 0].max(), 201)
+        need = np.max(np.hypot(p_BS[None, :, 0] - xs[:, None], p_BS[None, :, 1]) + radius[None], axis=1)
+        k = int(np.argmin(need))
+        return float(xs[k]), float(need[k])
+
+    @property
+    def bounding_radius(self) -> float:
+        return float(np.max(np.hypot(self.discs[:, 0], self.discs[:, 1]) + self.discs[:, 2]))
 
 
 @dataclasses.dataclass
@@ -60,6 +109,8 @@ class HybridAStarConfig:
         analytic_every: try a Reeds-Shepp connection every n expansions.
         max_expansions: search limit.
         check_step: sampling step [m] of collision checks along curves.
+        exact_slack: with an exact pose check, a pose that the 2D discs
+            block by less than this [m] is decided by the exact check.
     """
 
     turning_radius: float = 0.4
@@ -70,28 +121,53 @@ class HybridAStarConfig:
     analytic_every: int = 8
     max_expansions: int = 20000
     check_step: float = 0.04
+    exact_slack: float = 0.06
 
 
 @numba.njit(cache=True)
-def _poses_free(poses, clearance, origin, h, limit, exempt, exempt_r):
-    """True when every pose (M, 3) lies on a cell with clearance > limit.
+def _poses_free(poses, layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact, exact, exact_zone,
+                slack):
+    """True when every pose (M, 3) is free (see the module docstring).
 
-    Poses within exempt_r of a point of exempt (E, 2) are not tested (the
-    start/goal neighbourhoods, left to the whole-body 3D check).
+    Poses within exempt_r of exempt point e (E, 2) are checked with the
+    `exact` whole-body check (travel arm) where exempt_exact[e] == 1, with
+    exact_zone[e] (the start's/goal's own arm) where it is 2; `exact` may be
+    None (no zones then).
     """
-    nx, ny = clearance.shape
+    nx = layers.shape[1]
+    ny = layers.shape[2]
     for k in range(poses.shape[0]):
-        skip = False
+        x, y, th = poses[k, 0], poses[k, 1], poses[k, 2]
+        zone = -1
         for e in range(exempt.shape[0]):
-            if (poses[k, 0] - exempt[e, 0]) ** 2 + (poses[k, 1] - exempt[e, 1]) ** 2 < exempt_r * exempt_r:
-                skip = True
-        if skip:
+            if (x - exempt[e, 0]) ** 2 + (y - exempt[e, 1]) ** 2 < exempt_r * exempt_r:
+                zone = e
+                break
+        if zone >= 0:
+            if exact is not None:
+                if exempt_exact[zone] == 1 and not base_pose_free_exact(x, y, th, exact):
+                    return False
+                if exempt_exact[zone] == 2 and not base_pose_free_exact(x, y, th, exact_zone[zone]):
+                    return False
             continue
-        i = int(math.floor((poses[k, 0] - origin[0]) / h + 0.5))
-        j = int(math.floor((poses[k, 1] - origin[1]) / h + 0.5))
-        if 0 <= i < nx and 0 <= j < ny:
-            if not clearance[i, j] > limit:
-                return False
+        c = math.cos(th)
+        s = math.sin(th)
+        worst = -1.0
+        for d in range(discs.shape[0]):
+            px = x + c * discs[d, 0] - s * discs[d, 1]
+            py = y + s * discs[d, 0] + c * discs[d, 1]
+            i = int(math.floor((px - origin[0]) / h + 0.5))
+            j = int(math.floor((py - origin[1]) / h + 0.5))
+            if 0 <= i < nx and 0 <= j < ny:
+                worst = max(worst, discs[d, 2] + margin - layers[band[d], i, j])
+        if worst < 0.0:
+            continue
+        # Blocked in 2D by less than `slack`: the discs overestimate the
+        # robot, let the exact check decide.
+        if exact is not None and worst < slack:
+            if base_pose_free_exact(x, y, th, exact):
+                continue
+        return False
     return True
 
 
@@ -150,13 +226,16 @@ def _prim_poses(x, y, th, kappa, length, dth, n, out):
 
 
 @numba.njit(cache=True)
-def _search(start, goal, clearance, origin, h, limit, exempt, exempt_r, h2d, prims, prim_n, radius, check_step,
-            theta_bins, xy_res, analytic_every, max_exp, v, heur_weight):
+def _search(start, goal, layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact, exact, exact_zone,
+            slack,
+            h2d, prims, prim_n, radius, check_step, theta_bins, xy_res, analytic_every, max_exp, v, heur_weight,
+            near_goal):
     """The Hybrid A* loop. Returns (status, node, poses, parents, prim ids, rs types, rs lengths, expansions).
 
     status: 1 found (node connects to the goal by the RS path), 0 exhausted, -1 limit.
     """
-    nx, ny = clearance.shape
+    nx = layers.shape[1]
+    ny = layers.shape[2]
     # the search lattice covers the costmap
     x0 = origin[0] - 0.5 * h
     y0 = origin[1] - 0.5 * h
@@ -194,10 +273,10 @@ def _search(start, goal, clearance, origin, h, limit, exempt, exempt_r, h2d, pri
         if expansions > max_exp:
             return -1, -1, poses[:n_nodes], parents[:n_nodes], prim_of[:n_nodes], best_types, best_lengths, expansions
         dgoal = math.hypot(x - goal[0], y - goal[1])
-        if expansions % analytic_every == 1 or dgoal < 4.0 * radius:
+        if expansions % analytic_every == 1 or dgoal < near_goal:
             types, lengths, total = rs.shortest_path(poses[idx], goal, radius)
             path = rs.sample_path(poses[idx], types, lengths, radius, check_step)
-            if _poses_free(path, clearance, origin, h, limit, exempt, exempt_r):
+            if _poses_free(path, layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact, exact, exact_zone, slack):
                 return 1, idx, poses[:n_nodes], parents[:n_nodes], prim_of[:n_nodes], types, lengths, expansions
         for p in range(prims.shape[0]):
             m = _prim_poses(x, y, th, prims[p, 0], prims[p, 1], prims[p, 2], prim_n[p], buf)
@@ -207,7 +286,8 @@ def _search(start, goal, clearance, origin, h, limit, exempt, exempt_r, h2d, pri
             at = int(math.floor((_wrap(qt) + math.pi) / (2.0 * math.pi) * theta_bins)) % theta_bins
             if ai < 0 or aj < 0 or ai >= gx or aj >= gy or closed[ai, aj, at]:
                 continue
-            if prims[p, 2] == 0.0 and not _poses_free(buf[:m], clearance, origin, h, limit, exempt, exempt_r):
+            if not _poses_free(buf[:m], layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact,
+                               exact, exact_zone, slack):
                 continue
             # heuristic: obstacle-aware 2D distance (minus its grid slack) or Euclid
             i = int(math.floor((qx - origin[0]) / h + 0.5))
@@ -251,25 +331,51 @@ class BasePath:
 
 
 class HybridAStar:
-    """Hybrid A* planner for the base disc on a `Costmap2D`."""
+    """Hybrid A* planner for the base footprint on a `Costmap2D`.
 
-    def __init__(self, costmap: Costmap2D, footprint_radius: float,
-                 config: HybridAStarConfig | None = None):
+    Args:
+        costmap: the clearance layers.
+        footprint: a `Footprint2D`, or a radius (one disc about the base origin).
+        config: search parameters.
+        checker: optional `CollisionChecker` for exact whole-body pose
+            checks with `travel_arm` (torso + arm (8,)): poses that the 2D
+            discs block by less than `exact_slack`, and poses near a
+            start/goal whose footprint touches an obstacle (there with the
+            travel arm where it fits at that start/goal, else with the
+            start's/goal's own arm). Without it such a start/goal is rejected.
+        travel_arm: the torso + arm held while driving.
+    """
+
+    def __init__(self, costmap: Costmap2D, footprint: "Footprint2D | float",
+                 config: HybridAStarConfig | None = None, checker=None, travel_arm: np.ndarray | None = None):
         self.costmap = costmap
         self.config = config or HybridAStarConfig()
-        self.radius = float(footprint_radius)
-        self.limit = self.radius + costmap.margin
+        if not isinstance(footprint, Footprint2D):
+            footprint = Footprint2D.disc(float(footprint))
+        self.footprint = footprint
+        self._discs = np.ascontiguousarray(footprint.discs, float)
+        self._band = np.ascontiguousarray(footprint.band, np.int64)
+        if self._band.size and self._band.max() >= costmap.layers.shape[0]:
+            raise ValueError(f"footprint band {self._band.max()} but the costmap has {costmap.layers.shape[0]} layers")
+        self.radius = footprint.bounding_radius
+        self.checker = checker
+        self.exact = None if checker is None else checker.base_pose_check_data(travel_arm)
+        self._exact_zone = (self.exact, self.exact)
+        self._slack = self.config.exact_slack if checker is not None else 0.0
         self.v = layout.TRACKER_BASE_V
         self.w = layout.TRACKER_BASE_W
         self._primitives = self._make_primitives()
+        self._layers = np.ascontiguousarray(costmap.layers)
         self._exempt = np.zeros((0, 2))
+        self._exempt_exact = np.zeros(0, np.bool_)
         self._exempt_r = 0.0
         self._free = None
 
     def poses_free(self, poses: np.ndarray) -> bool:
         cm = self.costmap
-        return bool(_poses_free(np.ascontiguousarray(poses, float), cm.clearance, cm.origin, cm.resolution,
-                                self.limit, self._exempt, self._exempt_r))
+        return bool(_poses_free(np.ascontiguousarray(poses, float), self._layers, cm.origin, cm.resolution,
+                                cm.margin, self._discs, self._band, self._exempt, self._exempt_r,
+                                self._exempt_exact, self.exact, self._exact_zone, self._slack))
 
     def reeds_shepp(self, a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         """Sampled RS path a->b (M, 3) if its poses are free, else None."""
@@ -297,45 +403,71 @@ class HybridAStar:
                 counts.append(1)
         return np.array(rows), np.array(counts, dtype=np.int64)
 
-    def plan(self, start: np.ndarray, goal: np.ndarray, deadline_s: float | None = None) -> tuple[BasePath | None, str]:
+    def plan(self, start: np.ndarray, goal: np.ndarray, deadline_s: float | None = None,
+             start_arm: np.ndarray | None = None, goal_arm: np.ndarray | None = None) -> tuple[BasePath | None, str]:
         """A base path start->goal (poses (x, y, theta), theta unwrapped), or (None, reason).
 
         The search is bounded by `HybridAStarConfig.max_expansions` (it runs
-        compiled, without a clock); `deadline_s` is accepted for symmetry.
+        compiled, without a clock, so the same inputs give the same path);
+        `deadline_s` is accepted for symmetry.
         """
         c = self.config
         cm = self.costmap
         start = np.asarray(start, float)
         goal = np.asarray(goal, float)
-        # A start/goal whose stowed footprint touches an obstacle (e.g. the arm
-        # of the real configuration reaches over a table) is allowed: poses
-        # near it skip the 2D test; the whole-body 3D check decides there.
+        # A start/goal whose footprint touches an obstacle in 2D (e.g. parked
+        # at a table, the arm over it) gets a zone around it where poses are
+        # checked exactly (whole body, travel arm) instead.
         self._exempt = np.zeros((0, 2))
+        self._exempt_exact = np.zeros(0, np.int64)
         self._exempt_r = self.radius + 2.0 * cm.margin
-        exempt = [p[:2] for p in (start, goal) if not self.poses_free(p[None])]
+        exempt, exact, zone_data = [], [], []
+        for name, p, arm in (("start", start, start_arm), ("goal", goal, goal_arm)):
+            if self.poses_free(p[None]):
+                continue
+            if self.exact is None:
+                return None, f"no base path ({name} footprint in collision in the 2D map)"
+            exempt.append(p[:2])
+            # Exactly free with the travel arm: check the zone with it; else
+            # (the travel arm touches there) with the start's/goal's own arm,
+            # which the robot then holds near it; else leave it to the 3D check.
+            if base_pose_free_exact(p[0], p[1], p[2], self.exact):
+                exact.append(1)
+                zone_data.append(self.exact)
+            elif arm is not None:
+                data = self.checker.base_pose_check_data(arm)
+                exact.append(2 if base_pose_free_exact(p[0], p[1], p[2], data) else 0)
+                zone_data.append(data)
+            else:
+                exact.append(0)
+                zone_data.append(self.exact)
         self._exempt = np.array(exempt, float).reshape(-1, 2)
+        self._exempt_exact = np.array(exact, np.int64)
+        while len(zone_data) < 2:
+            zone_data.append(self.exact)
+        self._exact_zone = tuple(zone_data)
         direct = self.reeds_shepp(start, goal)
         if direct is not None:
             return BasePath(direct, 0), ""
         free = self._free_mask()
+        nx, ny = free.shape
         if self._exempt.shape[0]:
             free = free.copy()
-            gx = cm.origin[0] + cm.resolution * np.arange(free.shape[0])
-            gy = cm.origin[1] + cm.resolution * np.arange(free.shape[1])
+            gx = cm.origin[0] + cm.resolution * np.arange(nx)
+            gy = cm.origin[1] + cm.resolution * np.arange(ny)
             for ex, ey in self._exempt:
                 free |= ((gx[:, None] - ex) ** 2 + (gy[None, :] - ey) ** 2) < self._exempt_r ** 2
         h2d = self._heuristic_grid(free, goal)
         si, sj = cm.cell(start)
-        nx, ny = free.shape
         if 0 <= si < nx and 0 <= sj < ny and not np.isfinite(h2d[si, sj]):
             return None, "no base path (goal unreachable in the 2D map)"
         prims, counts = self._primitives
         xy_res = max(cm.resolution, 0.5 * c.step)
         status, node, poses, parents, prim_of, types, lengths, expansions = _search(
-            start, goal, cm.clearance, cm.origin, cm.resolution, self.limit, self._exempt, self._exempt_r,
-            h2d, prims, counts,
-            c.turning_radius, c.check_step, c.theta_bins, xy_res, c.analytic_every,
-            c.max_expansions, self.v, 1.2)
+            start, goal, self._layers, cm.origin, cm.resolution, cm.margin, self._discs, self._band,
+            self._exempt, self._exempt_r, self._exempt_exact, self.exact, self._exact_zone, self._slack,
+            h2d, prims, counts, c.turning_radius, c.check_step, c.theta_bins, xy_res, c.analytic_every,
+            c.max_expansions, self.v, 1.2, 4.0 * self.radius)
         if status == -1:
             return None, "no base path (search limit)"
         if status == 0:
@@ -357,8 +489,14 @@ class HybridAStar:
         return BasePath(np.concatenate(segs), int(expansions)), ""
 
     def _free_mask(self) -> np.ndarray:
+        """Cells where the footprint may fit at some heading (a relaxation:
+        every disc centre lies within |offset| + h of the cell centre)."""
         if self._free is None:
-            self._free = self.costmap.free_mask(self.radius)
+            cm = self.costmap
+            free = np.ones(cm.shape, bool)
+            for (x, y, r), b in zip(self._discs, self._band):
+                free &= cm.free_mask(r - math.hypot(x, y) - cm.resolution - self._slack, int(b))
+            self._free = free
         return self._free
 
     def _heuristic_grid(self, free: np.ndarray, goal: np.ndarray) -> np.ndarray:

@@ -29,7 +29,7 @@ import numpy as np
 
 from vamg_drake.planning import smoothing
 from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment, densify
-from vamg_drake.planning.hybrid_astar import Costmap2D, HybridAStar, HybridAStarConfig
+from vamg_drake.planning.hybrid_astar import Costmap2D, Footprint2D, HybridAStar, HybridAStarConfig
 from vamg_drake.planning.rrt_connect import RRTConnectConfig, rrt_connect
 from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.robot import layout
@@ -69,6 +69,10 @@ class PlannerConfig:
         fold_fractions: fractions of the base path over which the arm may fold
             into the travel pose; 0.0 = fold at the start placement.
         hybrid_astar_max_expansions: search limit of the base planner.
+        footprint_split_z: the base's 2D footprint is two discs: the robot's
+            parts reaching below this height [m] (the base) against the
+            obstacles of their height band, the rest (torso, travel arm)
+            against theirs; see `WholeBodyPlanner._travel_footprint`.
         travel_torso_arm: torso + 7 arm joints (8,) held while driving. Inside
             the base footprint like `layout.Q_ARM_STOW`, but raised and folded
             with free space around it (the stow pose sits in a tight pocket of
@@ -87,9 +91,10 @@ class PlannerConfig:
     bspline_samples: int = 25
     rrt_step: float = 0.6
     rrt_max_iterations: int = 400
-    placement_fractions: list[float] = dataclasses.field(default_factory=lambda: [0.6, 0.8, 1.0])
-    fold_fractions: list[float] = dataclasses.field(default_factory=lambda: [0.3, 0.0])
+    placement_fractions: list[float] = dataclasses.field(default_factory=lambda: [0.5, 0.7, 0.85, 1.0])
+    fold_fractions: list[float] = dataclasses.field(default_factory=lambda: [0.15, 0.3, 0.0])
     hybrid_astar_max_expansions: int = 20000
+    footprint_split_z: float = 0.3
     travel_torso_arm: list[float] = dataclasses.field(
         default_factory=lambda: [0.006, 1.432, -1.168, -0.587, -0.66, -1.532, 1.079, -1.958])
 
@@ -113,6 +118,23 @@ class PlanResult:
     timings: dict
     attempts: int = 0
     message: str = ""
+
+
+def _pad_to(dist, origin, origin0, h, shape):
+    """dist re-gridded onto the grid of origin0 and shape (cells outside: far)."""
+    off = np.rint((np.asarray(origin) - origin0) / h).astype(int)
+    out = np.full(shape, np.float32(1e6))
+    i0, j0 = off
+    if i0 < 0 or j0 < 0 or i0 + dist.shape[0] > shape[0] or j0 + dist.shape[1] > shape[1]:
+        raise ValueError("costmap layers do not share a grid")
+    out[i0:i0 + dist.shape[0], j0:j0 + dist.shape[1]] = dist
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class _BasePlan:
+    poses: np.ndarray
+    expansions: int
 
 
 class _Timeout(Exception):
@@ -141,12 +163,9 @@ class WholeBodyPlanner:
         self.checker = checker
         self._hybrid: HybridAStar | None = None
         self.travel = np.asarray(config.travel_torso_arm, dtype=float)
-        # Footprint of the robot with the arm in the travel pose, about the base origin.
-        q0 = np.concatenate([[0.0, 0.0, 0.0], self.travel])
-        c = checker.sphere_centers(q0[None])[0]
-        r = checker.sph_r
-        self.footprint_radius = float(np.max(np.hypot(c[:, 0], c[:, 1]) + r))
-        self.robot_top = float(np.max(c[:, 2] + r))
+        self.footprint, self.bands = self._travel_footprint(checker, self.travel, config.footprint_split_z)
+        self.footprint_radius = self.footprint.bounding_radius
+        self.robot_top = float(self.bands[-1][1])
 
     @staticmethod
     def for_fetch(env: CollisionEnvironment, config: PlannerConfig | None = None) -> "WholeBodyPlanner":
@@ -157,6 +176,28 @@ class WholeBodyPlanner:
             env, CollisionCheckerConfig(motion_resolution=config.motion_resolution,
                                         extra_padding=config.extra_padding))
         return WholeBodyPlanner(cc, config)
+
+    @staticmethod
+    def _travel_footprint(checker: CollisionChecker, travel: np.ndarray, split_z: float):
+        """Two discs covering the travel-pose robot's (padded) spheres: those
+        reaching below `split_z` (the base) and the rest (torso, arm, head),
+        each against the obstacles of its own height band.
+
+        Returns (`Footprint2D`, [(z_min, z_max) of band 0, of band 1]).
+        """
+        q0 = np.concatenate([[0.0, 0.0, 0.0], travel])
+        c = checker.sphere_centers(q0[None])[0]
+        r = checker.sph_r
+        keep = checker.check_env
+        c, r = c[keep], r[keep]
+        low = c[:, 2] - r < split_z
+        groups = [g for g in (low, ~low) if g.any()]
+        discs, bands = [], []
+        for b, g in enumerate(groups):
+            x, radius = Footprint2D.covering(c[g], r[g])
+            discs.append([x, 0.0, radius])
+            bands.append((float(np.min(c[g, 2] - r[g])) if b else -10.0, float(np.max(c[g, 2] + r[g]))))
+        return Footprint2D(np.array(discs), np.arange(len(discs), dtype=np.int64)), bands
 
     # -- environment ---------------------------------------------------------
 
@@ -178,7 +219,7 @@ class WholeBodyPlanner:
         if self._hybrid is not None and poses:
             cm = self._hybrid.costmap
             lo = cm.origin + margin_xy
-            hi = cm.origin + cm.resolution * (np.array(cm.clearance.shape) - 1) - margin_xy
+            hi = cm.origin + cm.resolution * (np.array(cm.shape) - 1) - margin_xy
             if any(np.any(p[:2] < lo) or np.any(p[:2] > hi) for p in poses):
                 self._hybrid = None
         if self._hybrid is None:
@@ -187,12 +228,15 @@ class WholeBodyPlanner:
             if poses:
                 xy = np.array([p[:2] for p in poses])
                 cover = (xy.min(axis=0) - margin_xy, xy.max(axis=0) + margin_xy)
-            dist, origin, res, margin = env.footprint_field_2d(-10.0, self.robot_top + 0.05,
-                                                               self.config.costmap_resolution, cover)
-            cm = Costmap2D(dist, origin, res, margin)
-            self._hybrid = HybridAStar(cm, self.footprint_radius, HybridAStarConfig(
+            layers = [env.footprint_field_2d(z0, z1, self.config.costmap_resolution, cover) for z0, z1 in self.bands]
+            dist = np.stack([_pad_to(l[0], l[1], layers[0][1], layers[0][2], max(x[0].shape for x in layers))
+                             for l in layers]) if len(layers) > 1 else layers[0][0]
+            _, origin, res, margin = layers[0]
+            cm = Costmap2D(dist, origin, res, max(l[3] for l in layers))
+            self._hybrid = HybridAStar(cm, self.footprint, HybridAStarConfig(
                 turning_radius=self.config.turning_radius,
-                max_expansions=self.config.hybrid_astar_max_expansions))
+                max_expansions=self.config.hybrid_astar_max_expansions),
+                checker=self.checker, travel_arm=self.travel)
         return self._hybrid
 
     # -- validation ------------------------------------------------------------
@@ -247,12 +291,18 @@ class WholeBodyPlanner:
         tc = time.perf_counter()
         self._base_planner(qs[:3], qg[:3])
         timings["costmap"] = 1e3 * (time.perf_counter() - tc)
+        # The base search is deterministic (expansion-capped): once per plan.
+        tb = time.perf_counter()
+        base_path = self._base_search(qs, qg)
+        timings["base"] += 1e3 * (time.perf_counter() - tb)
+        if isinstance(base_path, str):
+            return fail(FailureReason.NO_BASE_PATH, base_path, 1)
         reason, message = FailureReason.TIMEOUT, ""
         for attempt in range(self.config.max_attempts):
             rng = np.random.default_rng([self.config.seed, attempt])
             deadline = time.perf_counter() + self.config.attempt_budget_s
             try:
-                path, reason, message = self._attempt(qs, qg, rng, deadline, timings)
+                path, reason, message = self._attempt(qs, qg, base_path, rng, deadline, timings)
             except _Timeout:
                 path, reason, message = None, FailureReason.TIMEOUT, "attempt budget exceeded"
                 timings["arm"] += 1e3 * (time.perf_counter() - self._stage_start)
@@ -262,11 +312,26 @@ class WholeBodyPlanner:
                 timings["refine"] += 1e3 * (time.perf_counter() - tr)
                 timings["total"] = 1e3 * (time.perf_counter() - t0)
                 return PlanResult(True, FailureReason.NONE, traj, timings, attempt + 1, "")
-            if reason == FailureReason.NO_BASE_PATH and ("exhausted" in message or "unreachable" in message):
-                break  # deterministic: more attempts cannot help
         return fail(reason, message, attempt + 1)
 
-    def _attempt(self, qs, qg, rng, deadline, timings):
+    def _base_search(self, qa: np.ndarray, qb: np.ndarray):
+        """The base path from qa to qb (poses (N, 3), theta unwrapped), None
+        when the base does not move, or the failure message (str)."""
+        a, b = qa[:3], qb[:3]
+        if np.hypot(*(b[:2] - a[:2])) <= 1e-3 and abs(b[2] - a[2]) <= 1e-3:
+            return None
+        if np.hypot(*(b[:2] - a[:2])) <= 1e-3:
+            # Pure in-place rotation.
+            d = layout.wrap_angle(b[2] - a[2])
+            n = max(int(math.ceil(abs(d) / 0.05)), 1) + 1
+            th = a[2] + np.linspace(0.0, d, n)
+            return _BasePlan(np.column_stack([np.full(n, a[0]), np.full(n, a[1]), th]), 0)
+        path, why = self._base_planner(a, b).plan(a, b, start_arm=qa[3:], goal_arm=qb[3:])
+        if path is None:
+            return why
+        return _BasePlan(path.poses, path.expansions)
+
+    def _attempt(self, qs, qg, base_path, rng, deadline, timings):
         checker = self.checker
 
         def check_deadline():
@@ -274,24 +339,17 @@ class WholeBodyPlanner:
                 raise _Timeout()
 
         tb = self._stage_start = time.perf_counter()
-        base_moves = np.hypot(*(qg[:2] - qs[:2])) > 1e-3 or abs(qg[2] - qs[2]) > 1e-3
-        if not base_moves:
-            timings["base"] += 1e3 * (time.perf_counter() - tb)
+        if base_path is None:  # the base does not move
             ta = self._stage_start = time.perf_counter()
             arm = self._arm_motion(qs[:3], qs[3:], qg[3:], rng, deadline)
             timings["arm"] += 1e3 * (time.perf_counter() - ta)
             if arm is None:
                 return None, FailureReason.NO_ARM_PATH, "no fixed-base arm path"
             return self._refine([arm], timings, rng, deadline), "", ""
-        hybrid = self._base_planner(qs[:3], qg[:3])
-        base_start, base_goal = qs[:3].copy(), qg[:3].copy()
-        res, why = self._base_path(hybrid, base_start, base_goal, rng, deadline)
+        poses = base_path.poses
+        if base_path.expansions > 0:
+            poses = self._base_planner(qs[:3], qg[:3]).shortcut(poses, rng, self.config.base_shortcut_iterations)
         timings["base"] += 1e3 * (time.perf_counter() - tb)
-        if res is None:
-            if why == "timeout":
-                return None, FailureReason.TIMEOUT, "base search ran out of time"
-            return None, FailureReason.NO_BASE_PATH, why
-        poses = res
         goal_theta = poses[-1, 2]  # unwrapped heading at the end of the base path
         qg = qg.copy()
         qg[2] = goal_theta
@@ -302,11 +360,23 @@ class WholeBodyPlanner:
         if checker.first_collision(densify(Q, checker)) < 0:
             timings["arm"] += 1e3 * (time.perf_counter() - ta)
             return self._refine([Q], timings, rng, deadline), "", ""
-        # (b) fold into a carry pose, drive, unfold. Carry candidates: the
+        # (b) fold into the travel pose while driving, unfold while driving
+        # (synchronized pieces only, no search).
+        travel = _unwrap_toward(qs, np.concatenate([qs[:3], self.travel]))[3:]
+        path = self._via_carry(poses, qs, qg, travel, rng, deadline, search=False)
+        if path is not None:
+            timings["arm"] += 1e3 * (time.perf_counter() - ta)
+            return self._refine(path, timings, rng, deadline), "", ""
+        # (c) RRT-Connect over (progress along the base path, torso + arm).
+        path = self._along_base_path(poses, qs[3:], qg[3:], rng, deadline)
+        if path is not None:
+            timings["arm"] += 1e3 * (time.perf_counter() - ta)
+            return self._refine([path], timings, rng, deadline), "", ""
+        # (d) fold into a carry pose, drive, unfold, with fixed-base arm
+        # searches at the start/goal placements. Carry candidates: the
         # travel pose (inside the footprint), the goal arm (unfold at the
         # start), the start arm (unfold at the goal). Roll joints are taken
         # nearest to the start's so that the whole path stays unwrapped.
-        travel = _unwrap_toward(qs, np.concatenate([qs[:3], self.travel]))[3:]
         carries = [travel, qg[3:], qs[3:]]
         for carry in carries:
             path = self._via_carry(poses, qs, qg, carry, rng, deadline)
@@ -316,10 +386,11 @@ class WholeBodyPlanner:
         timings["arm"] += 1e3 * (time.perf_counter() - ta)
         return None, FailureReason.NO_ARM_PATH, "no arm connection at any placement along the base path"
 
-    def _via_carry(self, poses, qs, qg, carry, rng, deadline) -> list[np.ndarray] | None:
+    def _via_carry(self, poses, qs, qg, carry, rng, deadline, search: bool = True) -> list[np.ndarray] | None:
         """Pieces: fold qs->carry (synchronized over the first part of the base
         path, or at the start placement), drive holding carry, unfold
-        carry->qg (synchronized over the last part, or at the goal placement)."""
+        carry->qg (synchronized over the last part, or at the goal placement).
+        Without `search`, only the synchronized variants are tried."""
         cfg = self.config
         checker = self.checker
 
@@ -334,6 +405,8 @@ class WholeBodyPlanner:
                 if time.perf_counter() > deadline:
                     raise _Timeout()
                 if f <= 0.0:
+                    if not search:
+                        continue
                     arm = self._arm_motion(qs[:3], qs[3:], carry, rng, deadline)
                     if arm is not None:
                         pieces.append(arm)
@@ -363,6 +436,8 @@ class WholeBodyPlanner:
             if not needs_unfold:
                 return pieces + [drive]
             if k >= poses.shape[0] - 1:
+                if not search:
+                    continue
                 arm = self._arm_motion(poses[-1], carry, qg[3:], rng, deadline)
                 if arm is None:
                     continue
@@ -371,21 +446,6 @@ class WholeBodyPlanner:
             if free(Qu):
                 return pieces + [drive, Qu]
         return None
-
-    def _base_path(self, hybrid: HybridAStar, a, b, rng, deadline):
-        if np.hypot(*(b[:2] - a[:2])) <= 1e-3:
-            # Pure in-place rotation.
-            d = layout.wrap_angle(b[2] - a[2])
-            n = max(int(math.ceil(abs(d) / 0.05)), 1) + 1
-            th = a[2] + np.linspace(0.0, d, n)
-            return np.column_stack([np.full(n, a[0]), np.full(n, a[1]), th]), ""
-        path, why = hybrid.plan(a, b, deadline)
-        if path is None:
-            return None, why
-        poses = path.poses
-        if path.expansions > 0:
-            poses = hybrid.shortcut(poses, rng, self.config.base_shortcut_iterations)
-        return poses, ""
 
     @staticmethod
     def _index_at_fraction(poses: np.ndarray, f: float) -> int:
@@ -406,6 +466,67 @@ class WholeBodyPlanner:
         s = cum / cum[-1] if cum[-1] > 0 else np.linspace(0.0, 1.0, poses.shape[0])
         arm = arm_a + s[:, None] * (arm_b - arm_a)
         return np.concatenate([poses, arm], axis=1)
+
+    def _along_base_path(self, poses: np.ndarray, arm_a: np.ndarray, arm_b: np.ndarray, rng,
+                         deadline) -> np.ndarray | None:
+        """Whole-body states (N, 11) that follow the base path `poses` while
+        the torso/arm moves from arm_a to arm_b, or None.
+
+        RRT-Connect over x = (u, torso + arm) where u is the base's progress
+        along the path in seconds of travel at the tracker's speed limits (it
+        may go back: the base then reverses along its own curve). Straight
+        segments in x are checked at the motion resolution: the base moves
+        at most V du [m] and W du [rad] over du, so every sphere moves at most
+        (V + W * lever_theta) du plus the arm's share.
+        """
+        checker = self.checker
+        d = np.diff(poses, axis=0)
+        dt = np.maximum(np.hypot(d[:, 0], d[:, 1]) / layout.TRACKER_BASE_V,
+                        np.abs(d[:, 2]) / layout.TRACKER_BASE_W)
+        cum = np.concatenate([[0.0], np.cumsum(dt)])
+        total = float(cum[-1])
+        if total <= 0.0:
+            return None
+        base_rate = layout.TRACKER_BASE_V + layout.TRACKER_BASE_W * checker.lever[2]
+        arm_lever = checker.lever[3:]
+        res = checker.config.motion_resolution
+        last = poses.shape[0] - 2
+
+        def states(xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
+            dx = xb - xa
+            bound = abs(dx[0]) * base_rate + float(np.abs(dx[1:]) @ arm_lever)
+            n = max(int(math.ceil(bound / res)), 1) + 1
+            X = xa + np.linspace(0.0, 1.0, n)[:, None] * dx
+            u = X[:, 0]
+            i = np.clip(np.searchsorted(cum, u, side="right") - 1, 0, last)
+            f = np.clip((u - cum[i]) / np.maximum(dt[i], 1e-12), 0.0, 1.0)
+            base = poses[i] + f[:, None] * (poses[i + 1] - poses[i])
+            return np.concatenate([base, X[:, 1:]], axis=1)
+
+        def motion_free(xa, xb):
+            return checker.first_collision(states(xa, xb)) < 0
+
+        lo = np.concatenate([[0.0], layout.SAMPLE_LOWER[3:]])
+        hi = np.concatenate([[total], layout.SAMPLE_UPPER[3:]])
+        c = np.concatenate([[False], layout.IS_CONTINUOUS[3:]])
+        mid = 0.5 * np.concatenate([[0.0], arm_a + arm_b])
+        lo = np.where(c, mid - np.pi, lo)
+        hi = np.where(c, mid + np.pi, hi)
+        w = np.concatenate([[1.0, 5.0], np.ones(7)])  # base seconds; torso metres weigh more
+        xa = np.concatenate([[0.0], arm_a])
+        xb = np.concatenate([[total], arm_b])
+        path, why = rrt_connect(xa, xb, motion_free, lo, hi, rng,
+                                RRTConnectConfig(step=self.config.rrt_step,
+                                                 max_iterations=self.config.rrt_max_iterations),
+                                deadline, w)
+        if path is None:
+            if why == "timeout":
+                raise _Timeout()
+            return None
+        if path.shape[0] > 2:
+            path = smoothing.shortcut(path, motion_free, rng, self.config.arm_shortcut_iterations)
+        out = [states(path[k], path[k + 1])[(1 if k else 0):] for k in range(path.shape[0] - 1)]
+        return np.concatenate(out)
 
     def _arm_motion(self, base: np.ndarray, arm_a: np.ndarray, arm_b: np.ndarray, rng, deadline):
         """A fixed-base torso+arm path as whole-body states (N, 11), or None."""
