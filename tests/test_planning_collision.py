@@ -92,3 +92,17 @@ def test_empty_map_is_free():
     checker = CollisionChecker.for_fetch(env)
     assert env.is_empty
     assert checker.is_free(layout.stow_configuration(0.0, 0.0, 0.0)[None])[0]
+
+
+def test_edt_2d_matches_scipy():
+    from scipy import ndimage
+
+    from vamg_drake.planning.collision import edt_2d
+
+    rng = np.random.default_rng(0)
+    for shape, p in [((60, 45), 0.02), ((1, 7), 0.3), ((33, 20), 0.0005)]:
+        occ = rng.random(shape) < p
+        occ[0, 0] = True
+        np.testing.assert_allclose(edt_2d(occ, 0.05), ndimage.distance_transform_edt(~occ, sampling=0.05),
+                                   atol=1e-5)
+    assert np.all(np.isinf(edt_2d(np.zeros((4, 5), bool), 0.05)))

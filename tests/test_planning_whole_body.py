@@ -44,6 +44,23 @@ def test_plan_in_generated_room_is_free_in_drake_exact_geometry(seed, base_check
     assert colliding == []
 
 
+@pytest.mark.parametrize("seed", [3])
+def test_plan_in_procedural_room_is_free_in_drake_exact_geometry(seed, base_checker):
+    """The benchmark's workload: a `generate_scenario` room, goal at the target."""
+    from vamg_drake.planning.drake_reference import DrakeCollisionWorld
+    from vamg_drake.planning.problems import room_problem
+
+    problem = room_problem(seed, base_checker)
+    assert problem.blocked  # furniture between start and goal
+    planner = WholeBodyPlanner.for_fetch(CollisionEnvironment.from_primitives(problem.obstacles), CONFIG)
+    result = planner.plan(problem.q_start, problem.q_goal)
+    assert result.success, result.message
+    dense = _dense_1cm(result.trajectory.q, planner.checker)
+    assert np.all(layout.within_limits(dense))
+    drake = DrakeCollisionWorld(problem.obstacles)
+    assert [i for i, q in enumerate(dense) if drake.in_collision(q)] == []
+
+
 def test_same_seed_gives_the_same_plan(base_checker):
     problem = make_problem(8, base_checker)
     env = CollisionEnvironment.from_primitives(problem.obstacles)

@@ -109,6 +109,8 @@ class HybridAStarConfig:
         analytic_every: try a Reeds-Shepp connection every n expansions.
         max_expansions: search limit.
         check_step: sampling step [m] of collision checks along curves.
+        heuristic_weight: weight of the heuristic (> 1: greedier, fewer
+            expansions, paths up to that factor longer before shortcutting).
         exact_slack: with an exact pose check, a pose that the 2D discs
             block by less than this [m] is decided by the exact check.
     """
@@ -122,6 +124,7 @@ class HybridAStarConfig:
     max_expansions: int = 20000
     check_step: float = 0.04
     exact_slack: float = 0.06
+    heuristic_weight: float = 3.0
 
 
 @numba.njit(cache=True)
@@ -467,7 +470,7 @@ class HybridAStar:
             start, goal, self._layers, cm.origin, cm.resolution, cm.margin, self._discs, self._band,
             self._exempt, self._exempt_r, self._exempt_exact, self.exact, self._exact_zone, self._slack,
             h2d, prims, counts, c.turning_radius, c.check_step, c.theta_bins, xy_res, c.analytic_every,
-            c.max_expansions, self.v, 1.2, 4.0 * self.radius)
+            c.max_expansions, self.v, c.heuristic_weight, 4.0 * self.radius)
         if status == -1:
             return None, "no base path (search limit)"
         if status == 0:
