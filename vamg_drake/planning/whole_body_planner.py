@@ -6,14 +6,17 @@ placements; base and arm discretized separately and synchronized into
 whole-body states that are validated in batches by the sphere checker.
 
 One attempt:
-  1. Base path start->goal (`HybridAStar`, which first tries one Reeds-Shepp
-     curve), shortened by randomized Reeds-Shepp shortcuts.
+  0. (Once per plan, deterministic, expansion-capped) base path start->goal
+     (`HybridAStar`, which first tries one Reeds-Shepp curve) on a two-band
+     2D costmap (cached per environment), with exact whole-body pose checks
+     where the 2D discs are in doubt and near a parked start/goal.
+  1. The base path shortened by randomized Reeds-Shepp shortcuts.
   2. Whole body, cheapest first: (a) the arm interpolated start->goal in sync
-     with the whole base path; else (b) fold the arm to the travel (stowed)
-     pose during the first part of the base path or at the start placement
-     (RRT-Connect), drive with the arm stowed, and unfold to the goal arm in
-     sync with the last part of the base path, trying candidate placements
-     along it, the last one being the goal placement (RRT-Connect).
+     with the whole base path; (b) fold to the travel pose over the first
+     part of the path and unfold over the last part (synchronized, no
+     search); (c) RRT-Connect over (progress along the base path, torso +
+     arm); (d) fold/unfold with fixed-base RRT-Connect at the start/goal
+     placements, for several carry poses.
   3. Refinement of the fixed-base arm pieces: randomized shortcutting and
      B-spline smoothing (kept only where valid); dense re-interpolation of the
      whole path at the checker's motion resolution and a final batch check.
