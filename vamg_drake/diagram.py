@@ -48,7 +48,7 @@ from vamg_drake.systems.robot_command import RobotCommandIntegrator
 from vamg_drake.systems.robot_state import RobotStateSelector
 from vamg_drake.systems.scripted_driver import ScriptedDriver, ScriptedDriverConfig
 from vamg_drake.systems.subgoal_policy_system import SubgoalPolicyConfig, make_subgoal_policy
-from vamg_drake.systems.target_cloud import TargetCloud
+from vamg_drake.systems.target_cloud import TargetCloud, TargetCloudConfig
 from vamg_drake.systems.timing import ModuleTimings
 from vamg_drake.systems.tracker_system import WholeBodyTracker
 from vamg_drake.world.episode_monitor import EpisodeMonitorConfig
@@ -76,6 +76,7 @@ class DiagramConfig:
         subgoal: the subgoal samplers.
         behaviour: the behaviour tree's budgets.
         policy_system: the SubgoalPolicy system.
+        target_cloud: the dense cloud around the target (grasp candidates).
         planner: the WholeBodyPlanner system.
         tracker: the 20 Hz whole-body tracker.
         scripted: the scripted driver.
@@ -94,6 +95,7 @@ class DiagramConfig:
     subgoal: SubgoalPipelineConfig = dc.field(default_factory=SubgoalPipelineConfig)
     behaviour: BehaviourConfig = dc.field(default_factory=BehaviourConfig)
     policy_system: SubgoalPolicyConfig = dc.field(default_factory=SubgoalPolicyConfig)
+    target_cloud: TargetCloudConfig = dc.field(default_factory=TargetCloudConfig)
     planner: PlannerSystemConfig = dc.field(default_factory=PlannerSystemConfig)
     tracker: TrackerConfig = dc.field(default_factory=TrackerConfig)
     scripted: ScriptedDriverConfig = dc.field(default_factory=ScriptedDriverConfig)
@@ -228,13 +230,14 @@ def _add_full_system(builder: DiagramBuilder, ed: EpisodeDiagram, scenario: Scen
     builder.Connect(X_WC, point_map.GetInputPort("X_WC"))
     builder.Connect(q, point_map.GetInputPort("robot_configuration"))
 
-    cloud = builder.AddNamedSystem("target_cloud", TargetCloud(world.intrinsics, period=period))
+    cloud = builder.AddNamedSystem("target_cloud", TargetCloud(world.intrinsics, config.target_cloud))
     builder.Connect(depth_image, cloud.GetInputPort("depth_image"))
     builder.Connect(X_WC, cloud.GetInputPort("X_WC"))
     builder.Connect(target.get_output_port(), cloud.GetInputPort("target"))
 
     policy = builder.AddNamedSystem("subgoal_policy", make_subgoal_policy(
-        config.subgoal, config.behaviour, config.policy_system, seed=config.seed, timings=timings))
+        config.subgoal, config.behaviour, config.policy_system, seed=config.seed, timings=timings,
+        strategy=config.strategy))
     planner = builder.AddNamedSystem("planner", PlannerSystem(_seeded_planner_config(config), timings=timings))
     tracker = builder.AddNamedSystem("tracker", WholeBodyTracker(config.tracker))
     gaze = builder.AddNamedSystem("gaze", GazeOptimizer(world.intrinsics, config.gaze, period, timings=timings))

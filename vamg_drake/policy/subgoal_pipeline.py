@@ -57,6 +57,8 @@ class SubgoalPipelineConfig:
     target_clearance: float = 0.10
     #: Map points around the target given to the grasp candidate source [m].
     grasp_cloud_radius: float = 0.30
+    #: A map point with a dense-cloud point this close is left out of the grasp cloud [m].
+    dense_cover_radius: float = 0.04
     #: Enclosure test: rays from the target, blocked by a point within
     #: ``enclosure_ray_radius`` of the ray between ``enclosure_min_distance``
     #: (beyond the target object's own surface) and ``enclosure_range``.
@@ -185,8 +187,14 @@ class SubgoalPipeline:
             return SubgoalProposal.failure(problem, FailureCategory.PERCEPTION)
         cloud = p_WM[np.linalg.norm(p_WM - p_WT, axis=1) <= self.config.grasp_cloud_radius]
         if inputs.p_WS is not None and len(inputs.p_WS):
+            # The dense cloud replaces the coarse map voxels where it has points:
+            # voxel centres lie up to half a voxel off the surface and would
+            # block every finger placement on small objects.
             dense = np.asarray(inputs.p_WS, dtype=float).reshape(-1, 3)
-            cloud = np.concatenate([dense[np.linalg.norm(dense - p_WT, axis=1) <= self.config.grasp_cloud_radius], cloud])
+            dense = dense[np.linalg.norm(dense - p_WT, axis=1) <= self.config.grasp_cloud_radius]
+            if len(dense):
+                d, _ = cKDTree(dense).query(cloud, distance_upper_bound=self.config.dense_cover_radius)
+                cloud = np.concatenate([dense, cloud[~np.isfinite(d)]])
         t0 = time.perf_counter()
         candidates = self.grasp_source.propose(cloud, p_WT, self.rng)
         if self.timings is not None:

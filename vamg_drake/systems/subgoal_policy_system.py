@@ -138,6 +138,7 @@ def make_subgoal_policy(
     maps: KinematicMaps | None = None,
     seed: int = 0,
     timings=None,
+    strategy: str = "subgoal_tree",
 ) -> SubgoalPolicy:
     """The SubgoalPolicy over the real samplers (kinematic maps built on first use).
 
@@ -145,4 +146,6 @@ def make_subgoal_policy(
     """
     pipeline = SubgoalPipeline(maps or KinematicMaps.load_or_build(), config=pipeline_config, seed=seed,
                                timings=timings)
+    if strategy != "subgoal_tree":
+        raise ValueError(f"make_subgoal_policy: strategy '{strategy}' is not implemented yet")
     return SubgoalPolicy(SubgoalBehaviour(pipeline.samplers(), behaviour_config), config)

@@ -1,10 +1,19 @@
-"""TargetCloud: a dense cloud of the target's surroundings from the latest depth image.
+"""TargetCloud: a dense cloud of the target's surroundings from the depth images.
 
 The ray-cast map keeps points at its voxel size (3 cm), too coarse for small
-objects' grasp candidates; this system back-projects the depth image at full
-resolution and keeps the points within `radius` of the target, for the
-SubgoalPolicy's optional ``target_cloud`` input.
+objects' grasp candidates; this system back-projects every depth image at full
+resolution and accumulates the points within `radius` of the target (merged
+on a fine voxel grid), for the SubgoalPolicy's optional ``target_cloud`` input.
+
+Shape completion: a head camera sees one side of the object, and an antipodal
+grasp needs both. With ``mirror`` on, the object's points (those above the
+support surface near the target) are mirrored about the vertical axis through
+the target point, the known object position -- exact for the round and
+box-like objects of the benchmark when the target point is the object's
+centre, and the role a learned grasp network's shape prior plays in the paper.
 """
+
+import dataclasses as dc
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -16,28 +25,77 @@ from vamg_drake.perception.depth_points import DepthBackProjector, validate_pose
 from vamg_drake.robot.head_camera import CameraIntrinsics
 
 
-class TargetCloud(LeafSystem):
-    """Inputs: depth_image (ImageDepth32F), X_WC (RigidTransform), target (3).
-    Output: target_cloud ((N, 3) array p_WS, the latest view with at least
-    `min_points` points near the target; empty until then).
+@dc.dataclass
+class TargetCloudConfig:
+    """Parameters of the target cloud.
 
-    A bad pose or depth image is skipped (the previous cloud is kept).
+    Attributes:
+        radius: points within this distance of the target are kept [m].
+        voxel_size: accumulated points are merged on this grid [m].
+        max_points: the accumulated cloud is capped (oldest dropped first).
+        mirror: complete the object by mirroring about the target's vertical axis.
+        object_radius: horizontal radius around the target holding the object [m].
+        support_clearance: object points lie this far above the support surface [m].
+        period: update period [s].
     """
 
-    def __init__(self, intrinsics: CameraIntrinsics, radius: float = 0.3, min_points: int = 30, period: float = 0.1):
+    radius: float = 0.3
+    voxel_size: float = 0.004
+    max_points: int = 30000
+    mirror: bool = True
+    object_radius: float = 0.12
+    support_clearance: float = 0.008
+    period: float = 0.1
+
+
+def merge_on_grid(points: np.ndarray, voxel: float) -> np.ndarray:
+    """One point per voxel, the newest (last) one winning."""
+    if points.shape[0] == 0:
+        return points
+    keys = np.floor(points / voxel).astype(np.int64)
+    _, index = np.unique(keys[::-1], axis=0, return_index=True)
+    return points[::-1][np.sort(index)][::-1]
+
+
+def mirrored_object_points(p_WS: np.ndarray, p_WT: np.ndarray, object_radius: float,
+                           support_clearance: float) -> np.ndarray:
+    """The object's points mirrored about the vertical axis through p_WT."""
+    horizontal = np.linalg.norm(p_WS[:, :2] - p_WT[:2], axis=1)
+    near = p_WS[horizontal <= object_radius]
+    if near.shape[0] == 0:
+        return near
+    support = np.percentile(near[:, 2], 2.0)
+    obj = near[near[:, 2] >= support + support_clearance]
+    mirrored = obj.copy()
+    mirrored[:, :2] = 2.0 * p_WT[:2] - obj[:, :2]
+    return mirrored
+
+
+class TargetCloud(LeafSystem):
+    """Inputs: depth_image (ImageDepth32F), X_WC (RigidTransform), target (3).
+    Output: target_cloud ((N, 3) array p_WS around the target; empty until seen).
+
+    A bad pose or depth image is skipped (the previous cloud is kept). The
+    accumulated points never expire: objects that move near the target after
+    being seen leave stale points (the map's carving handles those; this cloud
+    only feeds grasp candidates).
+    """
+
+    def __init__(self, intrinsics: CameraIntrinsics, config: TargetCloudConfig | None = None):
         super().__init__()
+        self._config = config or TargetCloudConfig()
         self._projector = DepthBackProjector(intrinsics)
-        self._radius = radius
-        self._min_points = min_points
         self.DeclareAbstractInputPort("depth_image",
                                       AbstractValue.Make(ImageDepth32F(intrinsics.width, intrinsics.height)))
         self.DeclareAbstractInputPort("X_WC", AbstractValue.Make(RigidTransform()))
         self.DeclareVectorInputPort("target", 3)
+        self._seen = self.DeclareAbstractState(AbstractValue.Make(np.zeros((0, 3))))
         self._cloud = self.DeclareAbstractState(AbstractValue.Make(np.zeros((0, 3))))
         self.DeclareStateOutputPort("target_cloud", self._cloud)
-        self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._update)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(self._config.period, 0.0, self._update)
 
     def _update(self, context, state) -> EventStatus:
+        cfg = self._config
         p_WT = np.asarray(self.get_input_port(2).Eval(context), dtype=float)
         if not np.all(np.isfinite(p_WT)):
             return EventStatus.Succeeded()
@@ -47,7 +105,15 @@ class TargetCloud(LeafSystem):
             p_WS = self._projector.points_W(depth, X_WC)
         except ValueError:
             return EventStatus.Succeeded()
-        near = p_WS[np.linalg.norm(p_WS - p_WT, axis=1) <= self._radius]
-        if near.shape[0] >= self._min_points:
-            state.get_mutable_abstract_state(self._cloud).set_value(near)
+        new = p_WS[np.linalg.norm(p_WS - p_WT, axis=1) <= cfg.radius]
+        if new.shape[0] == 0:
+            return EventStatus.Succeeded()
+        seen = context.get_abstract_state(self._seen).get_value()
+        seen = merge_on_grid(np.concatenate([seen, new]), cfg.voxel_size)[-cfg.max_points:]
+        state.get_mutable_abstract_state(self._seen).set_value(seen)
+        cloud = seen
+        if cfg.mirror:
+            cloud = np.concatenate([seen, mirrored_object_points(seen, p_WT, cfg.object_radius,
+                                                                 cfg.support_clearance)])
+        state.get_mutable_abstract_state(self._cloud).set_value(cloud)
         return EventStatus.Succeeded()
