@@ -859,6 +859,17 @@ class CollisionChecker:
         other.set_environment(env)
         return other
 
+    def unpadded(self) -> "CollisionChecker":
+        """A copy over the same environment whose spheres are *not* inflated
+        for the motion resolution (radius + `extra_padding` only): the test of
+        whether a configuration actually penetrates something. Motions checked
+        with it need a fine spacing of their own (see `densify`)."""
+        other = object.__new__(CollisionChecker)
+        other.__dict__.update(self.__dict__)
+        other.padding = self.config.extra_padding
+        other.sph_r = self.base_radius + other.padding
+        return other
+
     def _args(self):
         t = self.tree
         e = self.env

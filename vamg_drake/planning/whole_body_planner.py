@@ -22,6 +22,28 @@ One attempt:
      whole path at the checker's motion resolution and a final batch check.
   4. Time parametrization within `layout.V_MAX`.
 Budget: `PlannerConfig.attempt_budget_s` per attempt, `max_attempts` attempts.
+
+Start and goal inside the padding. The checker inflates every sphere by half
+the motion resolution (+ `extra_padding`) so that straight motions between
+checked states are free. A configuration is *in collision* only when the
+unpadded spheres (radius + `extra_padding`) penetrate the environment, two
+spheres of a self-collision pair overlap, or a joint is outside its limits
+(`CollisionChecker.unpadded`). A start (goal) that is free but inside the
+padding (in closed loop: tracking error, or map points appearing as the robot
+approaches furniture) is accepted: the path first leaves the padding by the
+shortest short motion that reaches a padded-free configuration (the base
+straight back/forward along its heading, a turn in place, the torso/arm
+toward the travel pose, or base + arm together), and the plan proper starts
+there (for the goal: ends there, followed by the motion into the goal).
+Such an end piece is checked with the unpadded spheres at
+`end_check_resolution` (states that close, so a sphere may pass between two
+checked states by at most half that spacing, which the sphere model's slack
+over the robot's geometry covers). The same rule validates any path
+(`path_is_valid`, used by `trajectory_is_valid`): padded-colliding states are
+allowed only in a leading piece (leaving the start) and a trailing piece
+(reaching the goal), and those pieces must be free for the unpadded spheres.
+The subgoal sampler checks goals with the padded checker, a stricter test, so
+every goal it returns is accepted here.
 """
 
 import dataclasses
@@ -72,6 +94,10 @@ class PlannerConfig:
         fold_fractions: fractions of the base path over which the arm may fold
             into the travel pose; 0.0 = fold at the start placement.
         hybrid_astar_max_expansions: search limit of the base planner.
+        end_check_resolution: max sphere displacement [m] between states
+            checked with the unpadded spheres, on the end pieces of a path
+            that leave (reach) a start (goal) inside the padding.
+        escape_distance: longest base motion [m] tried to leave the padding.
         footprint_split_z: the base's 2D footprint is two discs: the robot's
             parts reaching below this height [m] (the base) against the
             obstacles of their height band, the rest (torso, travel arm)
@@ -97,6 +123,8 @@ class PlannerConfig:
     placement_fractions: list[float] = dataclasses.field(default_factory=lambda: [0.5, 0.7, 0.85, 1.0])
     fold_fractions: list[float] = dataclasses.field(default_factory=lambda: [0.15, 0.3, 0.0])
     hybrid_astar_max_expansions: int = 20000
+    end_check_resolution: float = 0.005
+    escape_distance: float = 0.3
     footprint_split_z: float = 0.3
     travel_torso_arm: list[float] = dataclasses.field(
         default_factory=lambda: [0.006, 1.432, -1.168, -0.587, -0.66, -1.532, 1.079, -1.958])
@@ -165,6 +193,7 @@ class WholeBodyPlanner:
         self.config = config
         self.checker = checker
         self._hybrid: HybridAStar | None = None
+        self._bare: CollisionChecker | None = None
         self.travel = np.asarray(config.travel_torso_arm, dtype=float)
         self.footprint, self.bands = self._travel_footprint(checker, self.travel, config.footprint_split_z)
         self.footprint_radius = self.footprint.bounding_radius
@@ -262,12 +291,87 @@ class WholeBodyPlanner:
         return q, ""
 
     def trajectory_is_valid(self, trajectory: TimedTrajectory, from_time: float | None = None) -> bool:
-        """Re-checks the (remaining part of a) trajectory against the current environment."""
+        """Re-checks the (remaining part of a) trajectory against the current
+        environment (`path_is_valid`)."""
         q = trajectory.q
         if from_time is not None and from_time > trajectory.start_time:
             keep = trajectory.times > from_time
             q = np.concatenate([trajectory.sample(from_time)[None], q[keep]])
-        return self.checker.first_collision(densify(q, self.checker)) < 0
+        return self.path_is_valid(q)
+
+    def path_is_valid(self, path: np.ndarray) -> bool:
+        """The planner's validity rule for a path (N, 11) of straight segments:
+        free for the padded spheres at the motion resolution, except for a
+        leading and a trailing piece that may be inside the padding but must
+        be free for the unpadded spheres (see the module docstring)."""
+        checker = self.checker
+        dense = densify(np.asarray(path, dtype=float), checker)
+        if checker.first_collision(dense) < 0:
+            return True
+        free = checker.is_free(dense)
+        ok = np.flatnonzero(free)
+        if ok.size == 0:
+            return self._unpadded_path_free(dense)
+        i0, i1 = int(ok[0]), int(ok[-1])
+        if not free[i0:i1 + 1].all():
+            return False
+        return ((i0 == 0 or self._unpadded_path_free(dense[:i0 + 1]))
+                and (i1 == dense.shape[0] - 1 or self._unpadded_path_free(dense[i1:])))
+
+    def _unpadded_checker(self) -> CollisionChecker:
+        if self._bare is None or self._bare.env is not self.checker.env:
+            self._bare = self.checker.unpadded()
+        return self._bare
+
+    def _unpadded_path_free(self, path: np.ndarray) -> bool:
+        """Path (N, 11) free for the unpadded spheres at `end_check_resolution`."""
+        bare = self._unpadded_checker()
+        return bare.first_collision(densify(path, bare, resolution=self.config.end_check_resolution)) < 0
+
+    def _escape_candidates(self, q: np.ndarray) -> np.ndarray:
+        """Configurations (K, 11) a short motion from q, nearest first: the base
+        straight back/forward along its heading, turns in place, the torso/arm
+        toward the travel pose, and base + torso/arm together."""
+        step = 0.02
+        dists = np.arange(step, self.config.escape_distance + 1e-9, step)
+        heading = np.array([math.cos(q[2]), math.sin(q[2])])
+        travel = _unwrap_toward(q, np.concatenate([q[:3], self.travel]))[3:]
+        out = []
+        for d in np.concatenate([-dists, dists]):
+            qe = q.copy()
+            qe[:2] += d * heading
+            out.append(qe)
+        for a in np.arange(0.05, 0.5 + 1e-9, 0.05):
+            for sign in (-1.0, 1.0):
+                qe = q.copy()
+                qe[2] += sign * a
+                out.append(qe)
+        fractions = np.arange(0.1, 1.0 + 1e-9, 0.1)
+        for f in fractions:
+            qe = q.copy()
+            qe[3:] += f * (travel - q[3:])
+            out.append(qe)
+        for d in (-0.3, -0.2, -0.1, -0.05, 0.05, 0.1, 0.2, 0.3):
+            for f in (0.25, 0.5, 1.0):
+                qe = q.copy()
+                qe[:2] += d * heading
+                qe[3:] += f * (travel - q[3:])
+                out.append(qe)
+        Q = np.array(out)
+        cost = self.checker.sphere_displacement_bound(Q - q)
+        return Q[np.argsort(cost, kind="stable")]
+
+    def _leave_padding(self, q: np.ndarray, max_motions: int = 8) -> np.ndarray | None:
+        """The states (2, 11) [q, q_free] of the shortest candidate motion from
+        q (free, but inside the padding) to a padded-free configuration that
+        is free for the unpadded spheres all along, or None."""
+        Q = self._escape_candidates(q)
+        free = self.checker.is_free(Q)
+        for qe in Q[free][:max_motions]:
+            motion = np.stack([q, qe])
+            if self._unpadded_path_free(motion):
+                return motion
+        return None
 
     # -- planning ----------------------------------------------------------------
 
@@ -286,11 +390,52 @@ class WholeBodyPlanner:
         qg, msg = self.validate_configuration(q_goal, "goal")
         if qg is None:
             return fail(FailureReason.INVALID_INPUT, msg)
-        if not self.checker.is_free(qs[None])[0]:
-            return fail(FailureReason.START_IN_COLLISION, "the start configuration is in collision")
-        if not self.checker.is_free(qg[None])[0]:
-            return fail(FailureReason.GOAL_IN_COLLISION, "the goal configuration is in collision")
+        bare = self._unpadded_checker()
+        if not bare.is_free(qs[None])[0]:
+            return fail(FailureReason.START_IN_COLLISION,
+                        "the start configuration is in collision (the unpadded spheres penetrate the "
+                        "environment or each other)")
+        if not bare.is_free(qg[None])[0]:
+            return fail(FailureReason.GOAL_IN_COLLISION,
+                        "the goal configuration is in collision (the unpadded spheres penetrate the "
+                        "environment or each other)")
         qg = _unwrap_toward(qs, qg)
+        # Ends inside the padding: leave (reach) them by a short motion first.
+        head = tail = None
+        if not self.checker.is_free(qs[None])[0]:
+            head = self._leave_padding(qs)
+            if head is None:
+                return fail(FailureReason.START_IN_COLLISION,
+                            "the start is inside the collision padding and no short motion leaves it")
+        if not self.checker.is_free(qg[None])[0]:
+            tail = self._leave_padding(qg)
+            if tail is None:
+                return fail(FailureReason.GOAL_IN_COLLISION,
+                            "the goal is inside the collision padding and no short motion reaches it")
+            tail = tail[::-1]
+        result = self._plan_between(head[-1] if head is not None else qs,
+                                    tail[0] if tail is not None else qg, t0, timings)
+        if not result.success or (head is None and tail is None):
+            return result
+        tr = time.perf_counter()
+        q = result.trajectory.q
+        pieces = [head] if head is not None else []
+        pieces.append(q if head is None else q[1:])
+        if tail is not None:
+            # The plan's end equals tail[0] up to whole turns of continuous joints.
+            pieces.append((tail + (q[-1] - tail[0]))[1:])
+        traj = smoothing.time_parametrize(np.concatenate(pieces))
+        timings["refine"] += 1e3 * (time.perf_counter() - tr)
+        timings["total"] = 1e3 * (time.perf_counter() - t0)
+        return dataclasses.replace(result, trajectory=traj, timings=timings)
+
+    def _plan_between(self, qs: np.ndarray, qg: np.ndarray, t0: float, timings: dict) -> PlanResult:
+        """Plans between padded-free, validated configurations (qg unwrapped toward qs)."""
+
+        def fail(reason: str, message: str, attempts: int = 0) -> PlanResult:
+            timings["total"] = 1e3 * (time.perf_counter() - t0)
+            return PlanResult(False, reason, None, timings, attempts, message)
+
         tc = time.perf_counter()
         self._base_planner(qs[:3], qg[:3])
         timings["costmap"] = 1e3 * (time.perf_counter() - tc)

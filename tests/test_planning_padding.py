@@ -1,0 +1,116 @@
+"""Starts and goals inside the collision padding (closed loop: tracking error,
+map points appearing near the robot) are planned from; penetrating ones fail."""
+
+import numpy as np
+import pytest
+
+from vamg_drake.planning.collision import CollisionEnvironment, densify
+from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig, WholeBodyPlanner
+from vamg_drake.robot import layout
+from vamg_drake.world.primitives import WorldBox
+
+CONFIG = PlannerConfig(attempt_budget_s=5.0)
+Q_START = layout.stow_configuration(0.0, 0.0, 0.0)
+Q_GOAL = layout.stow_configuration(-2.5, 0.5, 0.0)
+
+
+def _front_of_robot(planner: WholeBodyPlanner, q: np.ndarray) -> float:
+    """The largest x reached by the robot's unpadded spheres at q (facing +x)."""
+    bare = planner.checker.unpadded()
+    c = bare.sphere_centers(q[None])[0]
+    keep = bare.check_env
+    return float(np.max(c[keep, 0] + bare.sph_r[keep]))
+
+
+def _wall_at(x_face: float) -> WorldBox:
+    """A 1 m high wall whose face toward the robot is the plane x = x_face."""
+    return WorldBox("wall/front", np.array([x_face + 0.05, 0.0, 0.5]), np.eye(3), np.array([0.05, 1.5, 0.5]))
+
+
+@pytest.fixture(scope="module")
+def planner():
+    return WholeBodyPlanner.for_fetch(CollisionEnvironment(), CONFIG)
+
+
+def test_start_one_centimetre_from_a_wall_plans_and_is_free_in_drake(planner):
+    from vamg_drake.planning.drake_reference import DrakeCollisionWorld
+
+    wall = _wall_at(_front_of_robot(planner, Q_START) + 0.01)
+    planner.set_environment(CollisionEnvironment.from_primitives([wall]))
+    assert planner.checker.padding > 0.01
+    assert not planner.checker.is_free(Q_START[None])[0]  # inside the padding
+    result = planner.plan(Q_START, Q_GOAL)
+    assert result.success, result.message
+    traj = result.trajectory
+    np.testing.assert_array_equal(traj.q[0], Q_START)
+    np.testing.assert_allclose(layout.wrap_configuration(traj.q[-1]), Q_GOAL, atol=1e-9)
+    assert planner.trajectory_is_valid(traj)
+    assert planner.trajectory_is_valid(traj, from_time=0.5 * traj.duration)
+    drake = DrakeCollisionWorld([wall])
+    dense = densify(traj.q, planner.checker, resolution=0.01)
+    assert [i for i, q in enumerate(dense) if drake.in_collision(q)] == []
+    # The path leaves the padding once and never re-enters it.
+    free = planner.checker.is_free(densify(traj.q, planner.checker))
+    first = int(np.argmax(free))
+    assert first > 0 and free[first:].all()
+
+
+def test_penetrating_start_and_goal_are_in_collision(planner):
+    wall = _wall_at(_front_of_robot(planner, Q_START) - 0.01)
+    planner.set_environment(CollisionEnvironment.from_primitives([wall]))
+    r = planner.plan(Q_START, Q_GOAL)
+    assert not r.success and r.reason == FailureReason.START_IN_COLLISION and r.trajectory is None
+    r = planner.plan(Q_GOAL, Q_START)
+    assert not r.success and r.reason == FailureReason.GOAL_IN_COLLISION and r.trajectory is None
+
+
+def test_goal_one_centimetre_from_a_wall_is_reached_exactly(planner):
+    wall = _wall_at(_front_of_robot(planner, Q_START) + 0.01)
+    planner.set_environment(CollisionEnvironment.from_primitives([wall]))
+    result = planner.plan(Q_GOAL, Q_START)
+    assert result.success, result.message
+    traj = result.trajectory
+    np.testing.assert_array_equal(traj.q[0], Q_GOAL)
+    np.testing.assert_allclose(layout.wrap_configuration(traj.q[-1]), Q_START, atol=1e-9)
+    assert planner.trajectory_is_valid(traj)
+    free = planner.checker.is_free(densify(traj.q, planner.checker))
+    last = free.shape[0] - 1 - int(np.argmax(free[::-1]))
+    assert last < free.shape[0] - 1 and free[:last + 1].all()
+
+
+def test_start_inside_the_padding_of_map_points_plans(planner):
+    """A point-cloud wall: the start is placed where the unpadded spheres are
+    free but the padded ones are not (found by bisection along x)."""
+    ys, zs = np.meshgrid(np.arange(-1.5, 1.5, 0.01), np.arange(0.0, 1.0, 0.01))
+    wall = np.column_stack([np.full(ys.size, 1.0), ys.ravel(), zs.ravel()])
+    planner.set_environment(CollisionEnvironment.from_points(wall, resolution=0.03))
+    bare = planner.checker.unpadded()
+
+    def last_free_x(is_free) -> float:
+        lo, hi = -1.0, 1.0  # free at lo, in collision at hi
+        for _ in range(40):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if is_free(layout.stow_configuration(mid, 0.0, 0.0)[None])[0] else (lo, mid)
+        return lo
+
+    x_padded, x_bare = last_free_x(planner.checker.is_free), last_free_x(bare.is_free)
+    assert x_bare > x_padded + 0.005
+    q_start = layout.stow_configuration(0.5 * (x_padded + x_bare), 0.0, 0.0)
+    assert bare.is_free(q_start[None])[0] and not planner.checker.is_free(q_start[None])[0]
+    result = planner.plan(q_start, layout.stow_configuration(-2.0, -0.5, 0.0))
+    assert result.success, result.message
+    np.testing.assert_array_equal(result.trajectory.q[0], q_start)
+    assert planner.trajectory_is_valid(result.trajectory)
+    # Further into the wall: the unpadded spheres penetrate.
+    r = planner.plan(layout.stow_configuration(x_bare + 0.01, 0.0, 0.0), layout.stow_configuration(-2.0, -0.5, 0.0))
+    assert r.reason == FailureReason.START_IN_COLLISION
+
+
+def test_path_may_enter_the_padding_only_at_its_ends(planner):
+    wall = _wall_at(_front_of_robot(planner, Q_START) + 0.01)
+    planner.set_environment(CollisionEnvironment.from_primitives([wall]))
+    away = layout.stow_configuration(-0.5, 0.0, 0.0)
+    assert planner.path_is_valid(np.stack([Q_START, away]))
+    assert planner.path_is_valid(np.stack([away, Q_START]))
+    # Passing through the padding in the middle of a path is not allowed.
+    assert not planner.path_is_valid(np.stack([away, Q_START, away]))
