@@ -326,16 +326,7 @@ class SubgoalBehaviour:
         elif event == MotionEvent.FAILED:
             need_goal = self._on_failed(inputs)
         elif event == MotionEvent.INVALIDATED:
-            self.invalidations += 1
-            if self.invalidations > self.config.max_invalidations:
-                self._terminate(inputs, FailureCategory.PLANNING, "the map invalidated the goal too often")
-            else:
-                need_goal = self.phase not in (Phase.GRASP_CLOSE, Phase.GRASP_LIFT)
-                # A goal the map invalidated does not use up its stage's goal budget.
-                stage = {Phase.PREGRASP: Stage.PREGRASP, Phase.OBSERVE: Stage.OBSERVE}.get(self.phase)
-                if need_goal and stage is not None and self._state.goals_issued[stage] > 0:
-                    self._state.goals_issued[stage] -= 1
-                self._transition(inputs, self.phase, "goal invalidated by the map: resampling")
+            need_goal = self._on_invalidated(inputs)
         if self.phase == Phase.GRASP_CLOSE and self.close_started is not None:
             if inputs.time - self.close_started >= self.config.close_duration:
                 self._set_goal(inputs, Phase.GRASP_LIFT, self.q_lift, "gripper closed: lifting")
@@ -354,14 +345,32 @@ class SubgoalBehaviour:
         state.goals_issued[stage] += 1
         self.head = np.full(2, np.nan) if p.head is None else np.asarray(p.head, float)
         if stage == Stage.GRASP:
-            self.q_grasp = np.asarray(p.q_grasp, float)
-            self.q_lift = self.q_grasp.copy()
-            self.q_lift[layout.TORSO] = min(layout.Q_UPPER[layout.TORSO], self.q_grasp[layout.TORSO] + self.config.lift_height)
-            self._set_goal(inputs, Phase.GRASP_MOVE, p.q_goal, "grasp goal found: moving to the pre-grasp pose")
+            self._start_grasp(inputs, p, "grasp goal found: moving to the pre-grasp pose")
         elif stage == Stage.PREGRASP:
             self._set_goal(inputs, Phase.PREGRASP, p.q_goal, "pre-grasp goal found")
         else:
             self._set_goal(inputs, Phase.OBSERVE, p.q_goal, "observe goal found")
+
+    def _on_invalidated(self, inputs: PolicyInputs) -> bool:
+        """The map invalidated the goal: True when a new goal must be chosen."""
+        self.invalidations += 1
+        if self.invalidations > self.config.max_invalidations:
+            self._terminate(inputs, FailureCategory.PLANNING, "the map invalidated the goal too often")
+            return False
+        need_goal = self.phase not in (Phase.GRASP_CLOSE, Phase.GRASP_LIFT)
+        # A goal the map invalidated does not use up its stage's goal budget.
+        stage = {Phase.PREGRASP: Stage.PREGRASP, Phase.OBSERVE: Stage.OBSERVE}.get(self.phase)
+        if need_goal and stage is not None and self._state.goals_issued[stage] > 0:
+            self._state.goals_issued[stage] -= 1
+        self._transition(inputs, self.phase, "goal invalidated by the map: resampling")
+        return need_goal
+
+    def _start_grasp(self, inputs: PolicyInputs, p: SubgoalProposal, reason: str) -> None:
+        """Starts the grasp execution phases with a grasp proposal (GRASP_MOVE first)."""
+        self.q_grasp = np.asarray(p.q_grasp, float)
+        self.q_lift = self.q_grasp.copy()
+        self.q_lift[layout.TORSO] = min(layout.Q_UPPER[layout.TORSO], self.q_grasp[layout.TORSO] + self.config.lift_height)
+        self._set_goal(inputs, Phase.GRASP_MOVE, p.q_goal, reason)
 
     def _on_reached(self, inputs: PolicyInputs) -> bool:
         if self.phase == Phase.GRASP_MOVE:
