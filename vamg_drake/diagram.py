@@ -234,6 +234,7 @@ def _add_full_system(builder: DiagramBuilder, ed: EpisodeDiagram, scenario: Scen
     builder.Connect(depth_image, cloud.GetInputPort("depth_image"))
     builder.Connect(X_WC, cloud.GetInputPort("X_WC"))
     builder.Connect(target.get_output_port(), cloud.GetInputPort("target"))
+    builder.Connect(q, cloud.GetInputPort("robot_configuration"))
 
     policy = builder.AddNamedSystem("subgoal_policy", make_subgoal_policy(
         config.subgoal, config.behaviour, config.policy_system, seed=config.seed, timings=timings,

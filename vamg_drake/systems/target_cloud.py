@@ -22,6 +22,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 from pydrake.systems.sensors import ImageDepth32F
 
 from vamg_drake.perception.depth_points import DepthBackProjector, validate_pose
+from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics
 
 
@@ -36,6 +37,7 @@ class TargetCloudConfig:
         mirror: complete the object by mirroring about the target's vertical axis.
         object_radius: horizontal radius around the target holding the object [m].
         support_clearance: object points lie this far above the support surface [m].
+        self_margin: points within this distance of the robot's spheres are dropped [m].
         period: update period [s].
     """
 
@@ -45,6 +47,7 @@ class TargetCloudConfig:
     mirror: bool = True
     object_radius: float = 0.12
     support_clearance: float = 0.008
+    self_margin: float = 0.02
     period: float = 0.1
 
 
@@ -73,6 +76,8 @@ def mirrored_object_points(p_WS: np.ndarray, p_WT: np.ndarray, object_radius: fl
 
 class TargetCloud(LeafSystem):
     """Inputs: depth_image (ImageDepth32F), X_WC (RigidTransform), target (3).
+    Input: robot_configuration (11): points inside the robot's spheres (plus
+    `self_margin`) are the robot itself and are dropped.
     Output: target_cloud ((N, 3) array p_WS around the target; empty until seen).
 
     A bad pose or depth image is skipped (the previous cloud is kept). The
@@ -89,6 +94,10 @@ class TargetCloud(LeafSystem):
                                       AbstractValue.Make(ImageDepth32F(intrinsics.width, intrinsics.height)))
         self.DeclareAbstractInputPort("X_WC", AbstractValue.Make(RigidTransform()))
         self.DeclareVectorInputPort("target", 3)
+        self._q_port = self.DeclareVectorInputPort("robot_configuration", layout.NQ)
+        from vamg_drake.robot.spheres import SphereModel
+
+        self._spheres = SphereModel.load()
         self._seen = self.DeclareAbstractState(AbstractValue.Make(np.zeros((0, 3))))
         self._cloud = self.DeclareAbstractState(AbstractValue.Make(np.zeros((0, 3))))
         self.DeclareStateOutputPort("target_cloud", self._cloud)
@@ -106,6 +115,11 @@ class TargetCloud(LeafSystem):
         except ValueError:
             return EventStatus.Succeeded()
         new = p_WS[np.linalg.norm(p_WS - p_WT, axis=1) <= cfg.radius]
+        q = np.asarray(self._q_port.Eval(context), dtype=float)
+        if new.shape[0] and np.all(np.isfinite(q)):
+            centers = self._spheres.world_spheres(q)
+            d = np.linalg.norm(new[:, None, :] - centers[None], axis=2) - self._spheres.radius[None]
+            new = new[np.all(d > cfg.self_margin, axis=1)]
         if new.shape[0] == 0:
             return EventStatus.Succeeded()
         seen = context.get_abstract_state(self._seen).get_value()
