@@ -37,6 +37,7 @@ from vamg_drake.control.whole_body_tracker import TrackerConfig
 from vamg_drake.perception.gaze import GazeConfig
 from vamg_drake.perception.raycast_map import RayCastMapConfig
 from vamg_drake.policy.behaviour_tree import BehaviourConfig
+from vamg_drake.policy.strategies import apply_strategy_defaults
 from vamg_drake.policy.subgoal_pipeline import SubgoalPipelineConfig
 from vamg_drake.systems.depth_sampler import DepthSampler
 from vamg_drake.systems.dynamic_obstacles import DynamicObstacleDriver
@@ -161,6 +162,7 @@ def build_diagram(scenario: Scenario, config: DiagramConfig | None = None, meshc
     """Builds the episode diagram for `scenario`."""
     config = config or DiagramConfig()
     config.validate()
+    config = apply_strategy_defaults(config)  # the method's system settings (gaze variant, replanning)
     builder = DiagramBuilder()
     timings = ModuleTimings()
     world = build_world(builder, scenario, config.world)

@@ -17,6 +17,7 @@ from vamg_drake.policy.behaviour_tree import (
     stage_name,
 )
 from vamg_drake.policy.kinematic_maps import KinematicMaps
+from vamg_drake.policy.strategies import BEHAVIOURS, StrategyConfig, make_strategy
 from vamg_drake.policy.subgoal_pipeline import SubgoalPipeline, SubgoalPipelineConfig
 from vamg_drake.robot import layout
 
@@ -139,13 +140,19 @@ def make_subgoal_policy(
     seed: int = 0,
     timings=None,
     strategy: str = "subgoal_tree",
+    strategy_config: StrategyConfig | None = None,
 ) -> SubgoalPolicy:
     """The SubgoalPolicy over the real samplers (kinematic maps built on first use).
 
-    ``timings`` (a `ModuleTimings`) collects the samplers' and the grasp candidates' costs.
+    ``strategy`` picks the behaviour (`vamg_drake.policy.strategies.BEHAVIOURS`:
+    the full system's subgoal tree or a baseline). ``timings`` (a
+    `ModuleTimings`) collects the samplers' and the grasp candidates' costs.
+
+    Raises:
+        ValueError: an unknown strategy.
     """
+    if strategy not in BEHAVIOURS:
+        raise ValueError(f"make_subgoal_policy: unknown strategy '{strategy}' (known: {', '.join(BEHAVIOURS)})")
     pipeline = SubgoalPipeline(maps or KinematicMaps.load_or_build(), config=pipeline_config, seed=seed,
                                timings=timings)
-    if strategy != "subgoal_tree":
-        raise ValueError(f"make_subgoal_policy: strategy '{strategy}' is not implemented yet")
-    return SubgoalPolicy(SubgoalBehaviour(pipeline.samplers(), behaviour_config), config)
+    return SubgoalPolicy(make_strategy(strategy, pipeline, behaviour_config, strategy_config), config)

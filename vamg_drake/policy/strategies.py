@@ -1,0 +1,538 @@
+"""The paper's baselines and system-level comparisons as subgoal strategies.
+
+Every method of the paper shares the world, the map, the whole-body planner,
+the tracker and the gaze optimizer; they differ in how the subgoals are chosen
+(``DiagramConfig.strategy``) and in a few system settings
+(`apply_strategy_defaults`). Each strategy is a behaviour with the interface of
+`SubgoalBehaviour` (``step``, ``phase``, ``goal_id``, ``history``, ...) and reuses
+its grasp execution (GRASP_MOVE planned to the pre-grasp pose -> GRASP_APPROACH
+linear -> GRASP_CLOSE -> GRASP_LIFT) and its command building. Only the choice
+of goals differs; no py_trees tree is ticked.
+
+Strategies (paper "Baselines" and appendix "System-Level Comparisons"):
+
+* ``subgoal_tree`` -- the full system, `SubgoalBehaviour` itself.
+* ``direct_grasping`` -- a fixed sequence observe -> navigate (whole-body
+  pre-grasp) -> grasp. Each stage's goal is sampled once: no adaptive goal
+  resampling. The planner still replans the path to the same goal when the
+  map invalidates it; a goal the map has put in collision, a motion failure or
+  a failed sample ends the episode. No gaze optimization (the gaze looks at
+  the target only, set by `apply_strategy_defaults`).
+* ``nav_and_manip`` -- navigation and manipulation decoupled: drive with the
+  arm stowed to a base pose at a fixed distance from the target
+  (``StrategyConfig.nav_standoff``), facing it, collision-free and seeing it in
+  the current map; closed loop (the planner replans on invalidation), the base
+  pose resampled after a failed drive (a pose that failed is not proposed
+  again). From the reached base, arm-only planning to a grasp (Algorithm 1,
+  base and torso fixed); no grasp from there ends the episode with the grasp
+  sampler's category (no base repositioning), a failed arm motion resamples the
+  grasp from the same base (at most ``max_motion_failures`` times).
+* ``capmap_placement`` -- like ``nav_and_manip``, but the base pose is the base
+  part of the pre-grasp sampler's whole-body configuration (capability map,
+  torso map, IK, collision; paper Algorithm 3). The arm is stowed while
+  driving; the torso keeps the sampled height (``capmap_keep_torso``) because
+  the sampled reachability holds for that height only.
+* ``closed_loop_replanning`` -- no stages: sample the whole-body pre-grasp
+  configuration and replan continuously towards it (the planner's
+  ``replan_period``, set by `apply_strategy_defaults`) until it is reached, then
+  grasp from there. A failed motion, a pre-grasp the map has put in collision,
+  or no grasp from the reached pre-grasp resamples the pre-grasp (at most
+  ``max_pregrasp_goals`` samples; invalidations do not count).
+
+For every strategy the navigation goal runs in the PREGRASP phase (the phase
+the scenario's table-top obstacles key on) and the observe goal in OBSERVE.
+
+Failure categories come from what happened: a sampler's own category when a
+sample ends the episode (PERCEPTION, REACHABILITY, IK, SUBGOAL), PLANNING
+after motion failures (including the ``max_total_failures`` and
+``max_invalidations`` limits of `BehaviourConfig`), SUBGOAL when a goal budget
+is used up by samples that could not be reached.
+"""
+
+import copy
+import dataclasses as dc
+import time
+from typing import TYPE_CHECKING, Callable
+
+import numpy as np
+
+from vamg_drake.policy.behaviour_tree import (
+    GRASP_PHASES,
+    BehaviourConfig,
+    FailureCategory,
+    Phase,
+    PolicyInputs,
+    SamplerFn,
+    Stage,
+    SubgoalBehaviour,
+    SubgoalProposal,
+    SubgoalSamplers,
+)
+from vamg_drake.policy.observe_sampler import ObserveConfig, ObserveSampler
+from vamg_drake.robot import layout
+
+if TYPE_CHECKING:  # imported for annotations only (diagram imports this module's users)
+    from vamg_drake.diagram import DiagramConfig
+    from vamg_drake.policy.subgoal_pipeline import SubgoalPipeline
+
+#: Goal validity under the current map: (inputs, q_goal (11,)) -> collision-free?
+GoalCheckFn = Callable[[PolicyInputs, np.ndarray], bool]
+
+
+@dc.dataclass
+class StrategyConfig:
+    """Parameters of the baseline strategies (the budgets are `BehaviourConfig`'s).
+
+    Attributes:
+        nav_standoff: nav_and_manip's base-to-target distances [m], tried in
+            order: the first is the fixed distance, the others are fallbacks
+            when no base pose at it is navigable.
+        nav_num_angles: base poses tried on each standoff circle.
+        avoid_radius: a navigation goal within this distance of one whose
+            motion failed is not proposed again [m].
+        capmap_keep_torso: capmap_placement drives with the sampled torso height
+            (else the stowed torso).
+        capmap_tries: pre-grasp samples tried for a base whose stowed
+            configuration is collision-free.
+        replan_period: the closed-loop-replanning baseline's periodic replanning [s].
+    """
+
+    nav_standoff: list[float] = dc.field(default_factory=lambda: [0.8, 0.7, 0.9])
+    nav_num_angles: int = 36
+    avoid_radius: float = 0.15
+    capmap_keep_torso: bool = True
+    capmap_tries: int = 3
+    replan_period: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not self.nav_standoff or min(self.nav_standoff) <= 0:
+            raise ValueError(f"StrategyConfig.nav_standoff must be positive distances, got {self.nav_standoff}")
+        for name in ("nav_num_angles", "capmap_tries"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"StrategyConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if self.avoid_radius < 0 or self.replan_period <= 0:
+            raise ValueError("StrategyConfig: avoid_radius must be >= 0 and replan_period > 0, got "
+                             f"{self.avoid_radius}, {self.replan_period}")
+
+
+@dc.dataclass
+class StrategySamplers:
+    """The goal generators a strategy uses.
+
+    Attributes:
+        grasp: grasp goal from the current base (Algorithm 1, base and torso fixed).
+        navigate: the navigation goal: the whole-body pre-grasp (direct grasping,
+            closed-loop replanning) or a stowed-arm base pose (nav_and_manip,
+            capmap_placement).
+        observe: the observe goal (direct grasping).
+        goal_is_free: whether a goal is still collision-free in the current map
+            (None: an invalidated goal is always treated as in collision).
+        reject: tells ``navigate`` that the motion to this goal failed, so it
+            proposes another (None: the sampler is random enough by itself).
+    """
+
+    grasp: SamplerFn
+    navigate: SamplerFn
+    observe: SamplerFn
+    goal_is_free: GoalCheckFn | None = None
+    reject: Callable[[np.ndarray], None] | None = None
+
+
+class StrategyBehaviour(SubgoalBehaviour):
+    """A fixed sequence of stages over the `SubgoalBehaviour` grasp execution.
+
+    Subclasses set ``STAGES`` and decide, per stage, what a failed sample, a
+    failed motion and an invalid goal lead to.
+
+    Args:
+        samplers: the goal generators.
+        config: budgets and grasp execution parameters.
+    """
+
+    NAME = ""
+    STAGES: tuple[Stage, ...] = ()
+    #: What the navigate sampler proposes (for logs).
+    NAVIGATION_GOAL = "whole-body pre-grasp"
+
+    def __init__(self, samplers: StrategySamplers, config: BehaviourConfig | None = None) -> None:
+        super().__init__(SubgoalSamplers(samplers.grasp, samplers.navigate, samplers.observe), config)
+        self.samplers = samplers
+        self._stage_index = 0
+        self._refund = False  # the next sample replaces an invalidated goal: no budget used
+
+    # -- inspection ---------------------------------------------------------
+
+    @property
+    def stage(self) -> Stage:
+        """The stage the strategy is in (or last was in)."""
+        return self.STAGES[self._stage_index]
+
+    def tree_status(self) -> str:
+        """The strategy's stage sequence and progress (there is no tree)."""
+        marks = ["[*]" if i == self._stage_index else "[ ]" for i in range(len(self.STAGES))]
+        stages = " -> ".join(f"{m} {s.value}" for m, s in zip(marks, self.STAGES))
+        return f"{self.NAME}: {stages}; phase {self.phase.value}; {self.reason}"
+
+    # -- SubgoalBehaviour hooks -----------------------------------------------
+
+    def _tick(self, inputs: PolicyInputs) -> None:
+        stage = self.stage
+        budget_reason = self._budget_reason(stage)
+        if budget_reason:
+            self._terminate(inputs, self._exhausted_category(), budget_reason)
+            return
+        p = self._sample(inputs, stage)
+        if p.success:
+            self._issue(inputs, stage, p)
+        else:
+            self._on_sample_failed(inputs, stage, p)
+
+    def _on_reached(self, inputs: PolicyInputs) -> bool:
+        if self.phase in GRASP_PHASES:
+            return super()._on_reached(inputs)
+        done = self.stage
+        self._stage_index = min(self._stage_index + 1, len(self.STAGES) - 1)
+        self._transition(inputs, Phase.IDLE, f"{done.value} goal reached: next {self.stage.value}")
+        return True
+
+    def _on_failed(self, inputs: PolicyInputs) -> bool:
+        stage = self.stage
+        self._state.motion_failures[stage] += 1
+        self.total_failures += 1
+        if self.total_failures > self.config.max_total_failures:
+            self._terminate(inputs, FailureCategory.PLANNING, f"{self.total_failures} motion failures")
+            return False
+        if stage != Stage.GRASP and self.samplers.reject is not None and self.q_goal is not None:
+            self.samplers.reject(self.q_goal)
+        return self._after_motion_failure(inputs, stage)
+
+    def _on_invalidated(self, inputs: PolicyInputs) -> bool:
+        self.invalidations += 1
+        if self.invalidations > self.config.max_invalidations:
+            self._terminate(inputs, FailureCategory.PLANNING, "the map invalidated the goal too often")
+            return False
+        if self.phase not in (Phase.PREGRASP, Phase.OBSERVE, Phase.GRASP_MOVE):
+            self._transition(inputs, self.phase, "map update during a linear or holding phase: continuing")
+            return False
+        if self._goal_still_free(inputs):
+            # Replanning to the same goal: a new goal id makes the planner plan afresh.
+            self._set_goal(inputs, self.phase, self.q_goal, "path invalidated by the map: replanning to the same goal")
+            return False
+        return self._after_goal_invalid(inputs, self.stage)
+
+    # -- per-strategy decisions (defaults: resample within the budgets) --------
+
+    def _budget(self, stage: Stage) -> int:
+        """How many goals the stage may issue."""
+        cfg = self.config
+        return {Stage.PREGRASP: cfg.max_pregrasp_goals, Stage.OBSERVE: cfg.max_observe_goals,
+                Stage.GRASP: cfg.max_motion_failures + 1}[stage]
+
+    def _on_sample_failed(self, inputs: PolicyInputs, stage: Stage, p: SubgoalProposal) -> None:
+        self._terminate(inputs, self._sample_failure_category(p), f"{stage.value}: {p.failure_reason}")
+
+    def _after_motion_failure(self, inputs: PolicyInputs, stage: Stage) -> bool:
+        self._transition(inputs, Phase.IDLE, f"motion to the {stage.value} goal failed: resampling")
+        return True
+
+    def _after_goal_invalid(self, inputs: PolicyInputs, stage: Stage) -> bool:
+        self._refund = True
+        self._transition(inputs, Phase.IDLE, f"the map put the {stage.value} goal in collision: resampling")
+        return True
+
+    # -- helpers --------------------------------------------------------------
+
+    def _sample(self, inputs: PolicyInputs, stage: Stage) -> SubgoalProposal:
+        sampler = {Stage.GRASP: self.samplers.grasp, Stage.PREGRASP: self.samplers.navigate,
+                   Stage.OBSERVE: self.samplers.observe}[stage]
+        try:
+            p = sampler(inputs)
+        except Exception as e:  # noqa: BLE001 - a sampler bug must not crash the episode
+            p = SubgoalProposal.failure(f"{stage.value} sampler raised {type(e).__name__}: {e}", FailureCategory.SUBGOAL)
+        if not p.success:
+            self._state.last_failures[stage] = (p.failure_reason, p.category)
+        return p
+
+    def _issue(self, inputs: PolicyInputs, stage: Stage, p: SubgoalProposal) -> None:
+        if not self._refund:
+            self._state.goals_issued[stage] += 1
+        self._refund = False
+        self.head = np.full(2, np.nan) if p.head is None else np.asarray(p.head, float)
+        if stage == Stage.GRASP:
+            self._start_grasp(inputs, p, f"{self.NAME}: grasp goal found: moving to the pre-grasp pose")
+        elif stage == Stage.PREGRASP:
+            self._set_goal(inputs, Phase.PREGRASP, p.q_goal, f"{self.NAME}: {self.NAVIGATION_GOAL} goal found")
+        else:
+            self._set_goal(inputs, Phase.OBSERVE, p.q_goal, f"{self.NAME}: observe goal found")
+
+    def _budget_reason(self, stage: Stage) -> str:
+        if self._refund:
+            return ""
+        n, budget = self._state.goals_issued[stage], self._budget(stage)
+        return f"{stage.value}: budget of {budget} goals used" if n >= budget else ""
+
+    def _goal_still_free(self, inputs: PolicyInputs) -> bool:
+        if self.samplers.goal_is_free is None or self.q_goal is None:
+            return False
+        try:
+            return bool(self.samplers.goal_is_free(inputs, self.q_goal))
+        except Exception:  # noqa: BLE001 - a failing check counts as "not free"
+            return False
+
+    def _motion_failed_often(self) -> bool:
+        return any(n >= self.config.max_motion_failures for n in self._state.motion_failures.values())
+
+    def _sample_failure_category(self, p: SubgoalProposal) -> FailureCategory:
+        """PLANNING after repeated motion failures, else the sampler's own category."""
+        if self._motion_failed_often():
+            return FailureCategory.PLANNING
+        return p.category if p.category != FailureCategory.NONE else FailureCategory.SUBGOAL
+
+    def _exhausted_category(self) -> FailureCategory:
+        return FailureCategory.PLANNING if self.total_failures > 0 else FailureCategory.SUBGOAL
+
+
+class DirectGraspingBehaviour(StrategyBehaviour):
+    """Observe -> navigate -> grasp, each goal sampled once (see the module docstring)."""
+
+    NAME = "direct_grasping"
+    STAGES = (Stage.OBSERVE, Stage.PREGRASP, Stage.GRASP)
+
+    def _budget(self, stage: Stage) -> int:
+        return 1
+
+    def _after_motion_failure(self, inputs: PolicyInputs, stage: Stage) -> bool:
+        self._terminate(inputs, FailureCategory.PLANNING,
+                        f"motion to the {stage.value} goal failed (direct grasping does not resample goals)")
+        return False
+
+    def _after_goal_invalid(self, inputs: PolicyInputs, stage: Stage) -> bool:
+        self._terminate(inputs, FailureCategory.SUBGOAL,
+                        f"the map put the {stage.value} goal in collision (direct grasping does not resample goals)")
+        return False
+
+
+class NavAndManipBehaviour(StrategyBehaviour):
+    """Navigate (arm stowed) to a base pose, then arm-only grasp planning."""
+
+    NAME = "nav_and_manip"
+    STAGES = (Stage.PREGRASP, Stage.GRASP)
+    NAVIGATION_GOAL = "base pose (arm stowed)"
+
+    def _on_sample_failed(self, inputs: PolicyInputs, stage: Stage, p: SubgoalProposal) -> None:
+        # No grasp from the reached base ends the episode: navigation and
+        # manipulation are decoupled, the base is not repositioned.
+        self._terminate(inputs, self._sample_failure_category(p), f"{stage.value}: {p.failure_reason}")
+
+    def _after_motion_failure(self, inputs: PolicyInputs, stage: Stage) -> bool:
+        if stage == Stage.GRASP and self._state.motion_failures[stage] > self.config.max_motion_failures:
+            self._terminate(inputs, FailureCategory.PLANNING,
+                            f"{self._state.motion_failures[stage]} arm motions from the reached base failed")
+            return False
+        what = "grasp from the same base" if stage == Stage.GRASP else "base pose"
+        self._transition(inputs, Phase.IDLE, f"motion to the {stage.value} goal failed: resampling the {what}")
+        return True
+
+
+class CapmapPlacementBehaviour(NavAndManipBehaviour):
+    """nav_and_manip with the base pose of the capability-map pre-grasp sampler."""
+
+    NAME = "capmap_placement"
+
+
+class ClosedLoopReplanningBehaviour(StrategyBehaviour):
+    """Continuous replanning towards a sampled pre-grasp, then grasp (no stages)."""
+
+    NAME = "closed_loop_replanning"
+    STAGES = (Stage.PREGRASP, Stage.GRASP)
+
+    def _budget(self, stage: Stage) -> int:
+        # Grasps are only sampled from reached pre-grasps: the pre-grasp budget bounds both.
+        return self.config.max_pregrasp_goals
+
+    def _back_to_pregrasp(self, inputs: PolicyInputs, reason: str) -> bool:
+        self._stage_index = 0
+        self._transition(inputs, Phase.IDLE, reason)
+        return True
+
+    def _on_sample_failed(self, inputs: PolicyInputs, stage: Stage, p: SubgoalProposal) -> None:
+        if stage == Stage.GRASP and not self._budget_reason(Stage.PREGRASP):
+            self._back_to_pregrasp(inputs, f"no grasp from the reached pre-grasp ({p.failure_reason}): resampling it")
+            self._tick(inputs)
+            return
+        self._terminate(inputs, self._sample_failure_category(p), f"{stage.value}: {p.failure_reason}")
+
+    def _after_motion_failure(self, inputs: PolicyInputs, stage: Stage) -> bool:
+        return self._back_to_pregrasp(inputs, f"motion to the {stage.value} goal failed: resampling the pre-grasp")
+
+    def _after_goal_invalid(self, inputs: PolicyInputs, stage: Stage) -> bool:
+        self._refund = True
+        return self._back_to_pregrasp(inputs, f"the map put the {stage.value} goal in collision: resampling the pre-grasp")
+
+
+#: The behaviour class of each strategy (``subgoal_tree`` is the full system).
+BEHAVIOURS: dict[str, type[SubgoalBehaviour]] = {
+    "subgoal_tree": SubgoalBehaviour,
+    "direct_grasping": DirectGraspingBehaviour,
+    "closed_loop_replanning": ClosedLoopReplanningBehaviour,
+    "nav_and_manip": NavAndManipBehaviour,
+    "capmap_placement": CapmapPlacementBehaviour,
+}
+
+
+# -- samplers over the real pipeline ------------------------------------------
+
+
+def _finite_points(inputs: PolicyInputs) -> np.ndarray:
+    p = np.asarray(inputs.p_WM, dtype=float).reshape(-1, 3)
+    return p[np.all(np.isfinite(p), axis=1)]
+
+
+class StandoffBaseSampler:
+    """nav_and_manip's navigation goal: a stowed-arm base pose at a fixed distance
+    from the target, facing it, navigable, collision-free and seeing it; the
+    one nearest to the current base wins. Poses near a rejected goal are skipped."""
+
+    def __init__(self, pipeline: "SubgoalPipeline", config: StrategyConfig) -> None:
+        self.pipeline = pipeline
+        self.config = config
+        self.sampler = ObserveSampler(pipeline.visibility, ObserveConfig(
+            costmap=pipeline.config.observe.costmap, standoff=list(config.nav_standoff),
+            num_angles=config.nav_num_angles, yaw_weight=pipeline.config.observe.yaw_weight))
+        self.rejected: list[np.ndarray] = []
+
+    def reject(self, q_goal: np.ndarray) -> None:
+        self.rejected.append(np.asarray(q_goal, float)[layout.BASE_XY].copy())
+
+    def __call__(self, inputs: PolicyInputs) -> SubgoalProposal:
+        p_WM, q, p_WT = _finite_points(inputs), np.asarray(inputs.q, float), np.asarray(inputs.p_WT, float)
+        problem = self.pipeline.target_problem(p_WM, p_WT)
+        if problem:
+            return SubgoalProposal.failure(problem, FailureCategory.PERCEPTION)
+        is_free = self.pipeline.collision_fn(p_WM, p_WT, q)
+        rejected = np.array(self.rejected).reshape(-1, 2)
+
+        def is_free_and_new(Q: np.ndarray) -> np.ndarray:
+            Q = np.atleast_2d(Q)
+            new = np.ones(len(Q), bool)
+            if len(rejected):
+                d = np.linalg.norm(Q[:, None, :2] - rejected[None], axis=2)
+                new = np.all(d > self.config.avoid_radius, axis=1)
+            free = np.zeros(len(Q), bool)
+            if new.any():
+                free[new] = is_free(Q[new])
+            return free
+
+        result = self.sampler.sample(p_WM, p_WT, q, is_free_and_new, self.pipeline.rng)
+        if not result.success:
+            excluded = f" ({len(self.rejected)} failed poses excluded)" if self.rejected else ""
+            return SubgoalProposal.failure(result.failure_reason + excluded, FailureCategory.SUBGOAL)
+        return SubgoalProposal(True, result.q, head=result.head)
+
+
+class CapmapBaseSampler:
+    """capmap_placement's navigation goal: the base (and torso) of a whole-body
+    pre-grasp sample with the arm stowed, collision-free in the current map."""
+
+    def __init__(self, pipeline: "SubgoalPipeline", config: StrategyConfig) -> None:
+        self.pipeline = pipeline
+        self.config = config
+
+    def __call__(self, inputs: PolicyInputs) -> SubgoalProposal:
+        p_WM, q, p_WT = _finite_points(inputs), np.asarray(inputs.q, float), np.asarray(inputs.p_WT, float)
+        for _ in range(self.config.capmap_tries):
+            p = self.pipeline.sample_pregrasp(inputs)
+            if not p.success:
+                return p
+            q_base = layout.stow_configuration(*p.q_goal[layout.BASE])
+            if self.config.capmap_keep_torso:
+                q_base[layout.TORSO] = p.q_goal[layout.TORSO]
+            if self.pipeline.collision_fn(p_WM, p_WT, q)(q_base[None])[0]:
+                _, head = self.pipeline.visibility.check(q_base[None], p_WT, p_WM)
+                return SubgoalProposal(True, q_base, head=head[0])
+        return SubgoalProposal.failure(
+            f"{self.config.capmap_tries} capability-map base poses collide with the arm stowed", FailureCategory.SUBGOAL)
+
+
+def _timed(pipeline: "SubgoalPipeline", name: str, sampler: SamplerFn) -> SamplerFn:
+    def timed(inputs: PolicyInputs) -> SubgoalProposal:
+        t0 = time.perf_counter()
+        try:
+            return sampler(inputs)
+        finally:
+            if pipeline.timings is not None:
+                pipeline.timings.add(name, 1e3 * (time.perf_counter() - t0))
+    return timed
+
+
+def goal_check(pipeline: "SubgoalPipeline") -> GoalCheckFn:
+    """The pipeline's collision check of one goal under the inputs' map."""
+    def goal_is_free(inputs: PolicyInputs, q_goal: np.ndarray) -> bool:
+        is_free = pipeline.collision_fn(_finite_points(inputs), np.asarray(inputs.p_WT, float), np.asarray(inputs.q, float))
+        return bool(is_free(np.asarray(q_goal, float)[None])[0])
+    return goal_is_free
+
+
+def strategy_samplers(strategy: str, pipeline: "SubgoalPipeline", config: StrategyConfig | None = None) -> StrategySamplers:
+    """The goal generators of ``strategy`` over the real samplers of ``pipeline``."""
+    config = config or StrategyConfig()
+    config.__post_init__()  # YAML-loaded configs skip __post_init__
+    base = pipeline.samplers()
+    navigate, reject = base.pregrasp, None
+    if strategy == "nav_and_manip":
+        standoff = StandoffBaseSampler(pipeline, config)
+        navigate, reject = _timed(pipeline, "subgoal_navigate", standoff), standoff.reject
+    elif strategy == "capmap_placement":
+        navigate = _timed(pipeline, "subgoal_navigate", CapmapBaseSampler(pipeline, config))
+    return StrategySamplers(base.grasp, navigate, base.observe, goal_check(pipeline), reject)
+
+
+def make_strategy(
+    strategy: str,
+    pipeline: "SubgoalPipeline",
+    behaviour_config: BehaviourConfig | None = None,
+    config: StrategyConfig | None = None,
+) -> SubgoalBehaviour:
+    """The behaviour of ``strategy`` (one of `BEHAVIOURS`) over ``pipeline``'s samplers.
+
+    Raises:
+        ValueError: an unknown strategy (the message lists the known ones).
+    """
+    if strategy not in BEHAVIOURS:
+        raise ValueError(f"strategy: unknown strategy '{strategy}' (known: {', '.join(BEHAVIOURS)})")
+    if strategy == "subgoal_tree":
+        return SubgoalBehaviour(pipeline.samplers(), behaviour_config)
+    return BEHAVIOURS[strategy](strategy_samplers(strategy, pipeline, config), behaviour_config)
+
+
+def apply_strategy_defaults(config: "DiagramConfig", strategy_config: StrategyConfig | None = None) -> "DiagramConfig":
+    """A copy of ``config`` with the system settings its strategy implies.
+
+    Settings still at their defaults are changed; values a method's YAML set
+    explicitly are kept.
+
+    * ``direct_grasping``: no gaze optimization -> ``gaze.variant = "target_only"``.
+    * ``closed_loop_replanning``: continuous replanning -> ``planner.replan_period``
+      (``StrategyConfig.replan_period``, 1 s: the planner's budget is 3 x 200 ms,
+      so replanning at 1 Hz keeps it at most ~60 % of one core in the worst case
+      and ~10 % typically, while the 10 Hz map still triggers the
+      invalidation replans in between; at 1.5 m/s the base moves at most 1.5 m
+      between periodic replans, within the 2.5 m map crop. Faster replanning
+      also makes the tracker switch references more often, the oscillation the
+      paper reports for this design, which is not what a baseline should
+      exaggerate.)
+    * the other strategies: unchanged.
+    """
+    strategy_config = strategy_config or StrategyConfig()
+    config = copy.deepcopy(config)
+    if config.strategy == "direct_grasping" and config.gaze.variant == _default(config.gaze, "variant"):
+        config.gaze.variant = "target_only"
+    if (config.strategy == "closed_loop_replanning"
+            and config.planner.replan_period == _default(config.planner, "replan_period")):
+        config.planner.replan_period = strategy_config.replan_period
+    return config
+
+
+def _default(obj, name: str):
+    """The dataclass default of field ``name`` of ``obj``."""
+    return next(f.default for f in dc.fields(obj) if f.name == name)
