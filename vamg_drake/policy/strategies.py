@@ -90,8 +90,8 @@ class StrategyConfig:
         nav_num_angles: base poses tried on each standoff circle.
         avoid_radius: a navigation goal within this distance of one whose
             motion failed is not proposed again [m].
-        capmap_keep_torso: capmap_placement drives with the sampled torso height
-            (else the stowed torso).
+        capmap_keep_torso: capmap_placement drives with the sampled torso height,
+            at least the stowed one (else the stowed torso).
         capmap_tries: pre-grasp samples tried for a base whose stowed
             configuration is collision-free.
         replan_period: the closed-loop-replanning baseline's periodic replanning [s].
@@ -446,7 +446,8 @@ class CapmapBaseSampler:
                 return p
             q_base = layout.stow_configuration(*p.q_goal[layout.BASE])
             if self.config.capmap_keep_torso:
-                q_base[layout.TORSO] = p.q_goal[layout.TORSO]
+                # Not below the stowed height: the stowed arm touches the base there.
+                q_base[layout.TORSO] = max(p.q_goal[layout.TORSO], layout.TORSO_STOW)
             if self.pipeline.collision_fn(p_WM, p_WT, q)(q_base[None])[0]:
                 _, head = self.pipeline.visibility.check(q_base[None], p_WT, p_WM)
                 return SubgoalProposal(True, q_base, head=head[0])
