@@ -143,10 +143,10 @@ class SubgoalSamplers:
 class BehaviourConfig:
     """Budgets and execution parameters of the subgoal behaviour."""
 
-    max_motion_failures: int = 2
-    max_total_failures: int = 6
-    max_pregrasp_goals: int = 4
-    max_observe_goals: int = 3
+    max_motion_failures: int = 3
+    max_total_failures: int = 10
+    max_pregrasp_goals: int = 6
+    max_observe_goals: int = 4
     max_invalidations: int = 10
     #: Base displacement that unblocks the grasp stage after a failed grasp motion [m].
     unblock_distance: float = 0.1

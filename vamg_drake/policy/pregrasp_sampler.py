@@ -201,10 +201,17 @@ class PregraspConfig:
     #: Weight base cells by (1 - c)^2 (else uniform over the eligible cells): an ablation switch.
     weight_bases: bool = True
     seed: int = 0
+    #: Arm seed of the IK (7 joints; empty = the current arm). From the tucked
+    #: stow pose, damped least squares lands in contorted solutions that the
+    #: planner then has to unfold to; a reaching "ready" seed gives natural
+    #: ones (in a furnished room: 13/20 pre-grasps planned vs 7/20 from stow).
+    ik_seed_arm: list[float] = dc.field(default_factory=lambda: [0.0, -0.5, 0.0, 1.2, 0.0, 0.9, 0.0])
 
     def __post_init__(self) -> None:
         if self.num_bases < 1 or self.samples_per_base < 1:
             raise ValueError("PregraspConfig: num_bases and samples_per_base must be >= 1")
+        if len(self.ik_seed_arm) not in (0, 7):
+            raise ValueError(f"PregraspConfig.ik_seed_arm must have 0 or 7 joints, got {len(self.ik_seed_arm)}")
         if len(self.base_radius) != 2 or not 0 <= self.base_radius[0] < self.base_radius[1]:
             raise ValueError(f"PregraspConfig.base_radius must be (min, max) with min < max, got {self.base_radius}")
 
@@ -316,7 +323,7 @@ class PregraspSampler:
         bases = costmap.sample_bases(p_WT, n_bases, cfg.base_radius, cfg.costmap.base_clearance, rng, cfg.weight_bases)
         if bases.shape[0] == 0:
             return fail("no navigable base cell within manipulation radius of the target (costmap)")
-        seed_arm = q_current[layout.ARM]
+        seed_arm = np.asarray(cfg.ik_seed_arm, float) if len(cfg.ik_seed_arm) else q_current[layout.ARM]
         for base in bases:
             n = min(cfg.samples_per_base, budget - funnel["samples"])
             if n <= 0:
