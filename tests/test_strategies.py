@@ -236,8 +236,13 @@ def test_total_motion_failures_and_sampler_exceptions() -> None:
 
 
 @pytest.fixture(scope="module")
-def pipeline() -> SubgoalPipeline:
-    return SubgoalPipeline(KinematicMaps.load_or_build(), seed=0)
+def maps() -> KinematicMaps:
+    return KinematicMaps.load_or_build()
+
+
+@pytest.fixture(scope="module")
+def pipeline(maps) -> SubgoalPipeline:
+    return SubgoalPipeline(maps, seed=0)
 
 
 @pytest.fixture(scope="module")
@@ -313,22 +318,34 @@ def test_real_capmap_placement(pipeline, scene) -> None:
     _arm_only(cmd.q_goal, goal)
 
 
-def test_real_direct_grasping_and_closed_loop(pipeline, scene) -> None:
+def test_real_direct_grasping(maps, scene) -> None:
     points, target = scene
     q0 = layout.stow_configuration(-1.5, 0.5, 0.0)
     kin = FetchKinematics.instance()
-    bt = make_strategy("direct_grasping", pipeline)
-    cmd = bt.step(PolicyInputs(0.0, q0, points, target))
-    assert cmd.phase == Phase.OBSERVE, bt.tree_status()
-    np.testing.assert_allclose(cmd.q_goal[layout.ARM], layout.Q_ARM_STOW)
-    cmd = bt.step(PolicyInputs(1.0, cmd.q_goal, points, target), MotionEvent.REACHED)
-    assert cmd.phase == Phase.PREGRASP, bt.tree_status()
-    q_pre = cmd.q_goal
-    assert np.linalg.norm(kin.gripper_pose(q_pre)[:3, 3] - target) == pytest.approx(0.10, abs=0.01)  # whole body
-    cmd = bt.step(PolicyInputs(2.0, q_pre, points, target), MotionEvent.REACHED)
-    assert cmd.phase == Phase.GRASP_MOVE
-    _arm_only(cmd.q_goal, q_pre)
+    grasped = 0
+    for seed in range(4):  # one pre-grasp sample per episode: some seeds give no grasp
+        bt = make_strategy("direct_grasping", SubgoalPipeline(maps, seed=seed))
+        cmd = bt.step(PolicyInputs(0.0, q0, points, target))
+        assert cmd.phase == Phase.OBSERVE, bt.tree_status()
+        np.testing.assert_allclose(cmd.q_goal[layout.ARM], layout.Q_ARM_STOW)
+        cmd = bt.step(PolicyInputs(1.0, cmd.q_goal, points, target), MotionEvent.REACHED)
+        assert cmd.phase == Phase.PREGRASP, bt.tree_status()
+        q_pre = cmd.q_goal
+        assert np.linalg.norm(kin.gripper_pose(q_pre)[:3, 3] - target) == pytest.approx(0.10, abs=0.01)  # whole body
+        cmd = bt.step(PolicyInputs(2.0, q_pre, points, target), MotionEvent.REACHED)
+        assert bt.goals_issued["pre_grasp"] == 1 and bt.goals_issued["observe"] == 1
+        if cmd.phase == Phase.GRASP_MOVE:
+            _arm_only(cmd.q_goal, q_pre)
+            grasped += 1
+        else:  # no resampling: the grasp sampler's category ends the episode
+            assert cmd.phase == Phase.FAILED and cmd.failure.value == bt.stage_failures["grasp"][1]
+    assert grasped >= 2
 
+
+def test_real_closed_loop(pipeline, scene) -> None:
+    points, target = scene
+    q0 = layout.stow_configuration(-1.5, 0.5, 0.0)
+    kin = FetchKinematics.instance()
     bt = make_strategy("closed_loop_replanning", pipeline)
     cmd = bt.step(PolicyInputs(0.0, q0, points, target))
     assert cmd.phase == Phase.PREGRASP and bt.goals_issued["observe"] == 0
@@ -336,8 +353,15 @@ def test_real_direct_grasping_and_closed_loop(pipeline, scene) -> None:
     first = cmd.q_goal
     cmd = bt.step(PolicyInputs(1.0, q0, points, target), MotionEvent.FAILED)
     assert cmd.phase == Phase.PREGRASP and not np.allclose(cmd.q_goal, first)
-    cmd = bt.step(PolicyInputs(2.0, cmd.q_goal, points, target), MotionEvent.REACHED)
-    assert cmd.phase == Phase.GRASP_MOVE
+    # Reached pre-grasps without a grasp are resampled until one gives a grasp (within the budget).
+    for k in range(bt.config.max_pregrasp_goals):
+        q_pre = cmd.q_goal
+        cmd = bt.step(PolicyInputs(2.0 + k, q_pre, points, target), MotionEvent.REACHED)
+        if cmd.phase != Phase.PREGRASP:
+            break
+        assert "no grasp from the reached pre-grasp" in bt.history[-2][2]
+    assert cmd.phase == Phase.GRASP_MOVE, bt.history
+    _arm_only(cmd.q_goal, q_pre)
 
 
 def test_target_inside_furniture_is_perception_for_every_strategy(pipeline) -> None:
