@@ -126,3 +126,25 @@ def test_remaining_path_starts_at_the_robot():
     rest = remaining_path(traj, q)
     np.testing.assert_allclose(rest[0], q)
     assert rest[1, 0] > q[0] and len(rest) < traj.num_waypoints
+
+
+def test_planner_handles_costmap_bands_on_different_grids():
+    """Regression: the box room seen from (-1, 0.5) gave height bands with
+    different crops and the planner raised 'costmap layers do not share a grid'."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from scenes import box_room_scenario
+    from vamg_drake.diagram import DiagramConfig, build_diagram
+    from vamg_drake.world.scenario import PlanarPose
+
+    scenario = box_room_scenario(time_limit=5.0)
+    scenario.robot_start = PlanarPose(-1.0, 0.5, 0.0)
+    ed = build_diagram(scenario, DiagramConfig())
+    simulator = Simulator(ed.diagram)
+    simulator.Initialize()
+    for t in np.arange(0.1, 1.01, 0.1):
+        simulator.AdvanceTo(t)
+        plan = ed.planner.GetOutputPort("trajectory").Eval(ed.planner.GetMyContextFromRoot(simulator.get_context()))
+        assert plan.reason != EXCEPTION_REASON, plan.error

@@ -261,9 +261,16 @@ class WholeBodyPlanner:
                 xy = np.array([p[:2] for p in poses])
                 cover = (xy.min(axis=0) - margin_xy, xy.max(axis=0) + margin_xy)
             layers = [env.footprint_field_2d(z0, z1, self.config.costmap_resolution, cover) for z0, z1 in self.bands]
-            dist = np.stack([_pad_to(l[0], l[1], layers[0][1], layers[0][2], max(x[0].shape for x in layers))
-                             for l in layers]) if len(layers) > 1 else layers[0][0]
             _, origin, res, margin = layers[0]
+            if len(layers) > 1:
+                # One grid holding every band: the lowest origin and the largest
+                # extent per axis (bands may be cropped differently).
+                origin = np.min([l[1] for l in layers], axis=0)
+                end = np.max([np.asarray(l[1]) + res * np.asarray(l[0].shape) for l in layers], axis=0)
+                shape = tuple(int(v) for v in np.rint((end - origin) / res))
+                dist = np.stack([_pad_to(l[0], l[1], origin, res, shape) for l in layers])
+            else:
+                dist = layers[0][0]
             cm = Costmap2D(dist, origin, res, max(l[3] for l in layers))
             self._hybrid = HybridAStar(cm, self.footprint, HybridAStarConfig(
                 turning_radius=self.config.turning_radius,
