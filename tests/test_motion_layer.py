@@ -112,7 +112,7 @@ def test_replanning_stops_after_max_replans():
             break
         x, y = traj.sample(0.5 * (traj.start_time + traj.end_time))[:2]
         system.GetInputPort("point_map").FixValue(context, AbstractValue.Make(_wall(x, y, revision)))
-        simulator.AdvanceTo(context.get_time() + 0.1)
+        simulator.AdvanceTo(context.get_time() + config.recheck_period)
         events.append(system.GetOutputPort("motion_feedback").Eval(context).event)
     plan = system.GetOutputPort("trajectory").Eval(context)
     assert events[:2] == [MotionEvent.INVALIDATED, MotionEvent.INVALIDATED]

@@ -40,7 +40,7 @@ def test_plans_then_replans_when_the_map_blocks_the_path():
     # A pillar appears on the straight path: the trajectory is invalidated and replanned.
     pillar = _box_points([1.5, 0.0, 0.6], [0.15, 0.15, 0.6])
     system.GetInputPort("point_map").FixValue(context, AbstractValue.Make(_snapshot(pillar, 1)))
-    simulator.AdvanceTo(0.15)
+    simulator.AdvanceTo(0.05 + PlannerSystemConfig().recheck_period)  # the next environment refresh
     plan = system.GetOutputPort("trajectory").Eval(context)
     feedback = system.GetOutputPort("motion_feedback").Eval(context)
     assert plan.success and plan.map_revision == 1

@@ -86,6 +86,10 @@ class PlannerSystemConfig:
             configuration within this base distance (the previous path behind
             the robot, or backing off along the heading) [m].
         max_escape_tries: escape configurations tried.
+        recheck_period: the collision environment is rebuilt from a newer map
+            (and the trajectory re-checked) at most this often, except when a
+            new goal must be planned at once: building the distance field of a
+            room-sized map costs ~150 ms in Python [s].
         planner: the planner's `PlannerConfig`.
     """
 
@@ -100,6 +104,7 @@ class PlannerSystemConfig:
     linear_speed_fraction: float = 0.25
     escape_distance: float = 0.3
     max_escape_tries: int = 4
+    recheck_period: float = 0.3
     planner: PlannerConfig = dc.field(default_factory=PlannerConfig)
 
 
@@ -318,6 +323,9 @@ class PlannerSystem(LeafSystem):
         self.DeclareStateOutputPort("motion_feedback", self._feedback_index)
         self.DeclarePeriodicUnrestrictedUpdateEvent(self._config.period, 0.0, self._update)
         self._env_key = None
+        self._env_revision = -1
+        self._env_time = -np.inf
+        self._timings = timings
 
     @property
     def planner(self) -> WholeBodyPlanner:
@@ -328,6 +336,7 @@ class PlannerSystem(LeafSystem):
         revision = -1 if snapshot is None else int(snapshot.revision)
         key = (revision, None if p_WT is None else tuple(np.round(p_WT, 3)))
         if key != self._env_key:
+            t0 = time.perf_counter()
             if snapshot is None or snapshot.num_points == 0:
                 env = CollisionEnvironment()
             else:
@@ -338,6 +347,8 @@ class PlannerSystem(LeafSystem):
                 env = CollisionEnvironment.from_points(p[keep], resolution=float(snapshot.voxel_size))
             self._planner.set_environment(env)
             self._env_key = key
+            if self._timings is not None:
+                self._timings.add("planner_environment", 1e3 * (time.perf_counter() - t0))
         return revision
 
     def _update(self, context, state) -> EventStatus:
@@ -355,12 +366,16 @@ class PlannerSystem(LeafSystem):
         if self._target_port.HasValue(context):
             p = np.asarray(self._target_port.Eval(context), dtype=float)
             p_WT = p if np.all(np.isfinite(p)) else None
-        try:
-            revision = self._set_map(snapshot, p_WT)
-        except ValueError as e:
-            _log.error("WholeBodyPlanner: bad map (%s)", e)
-            return EventStatus.Succeeded()
-        plan, event = self._supervisor.tick(plan, goal, q, context.get_time(), revision)
+        t = context.get_time()
+        refresh = goal.goal_id != plan.goal_id or t - self._env_time >= self._config.recheck_period - 1e-9
+        if refresh:
+            try:
+                self._env_revision = self._set_map(snapshot, p_WT)
+            except ValueError as e:
+                _log.error("WholeBodyPlanner: bad map (%s)", e)
+                return EventStatus.Succeeded()
+            self._env_time = t
+        plan, event = self._supervisor.tick(plan, goal, q, t, self._env_revision)
         state.get_mutable_abstract_state(self._plan_index).set_value(plan)
         if event != MotionEvent.NONE:
             state.get_mutable_abstract_state(self._feedback_index).set_value(self._MotionFeedback(goal.goal_id, event))
