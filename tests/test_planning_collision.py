@@ -48,7 +48,8 @@ def test_map_field_free_implies_exactly_free(room):
 def test_self_collision_matches_sphere_model():
     from vamg_drake.robot.spheres import SphereModel
 
-    checker = CollisionChecker.for_fetch(CollisionEnvironment(), CollisionCheckerConfig(motion_resolution=0.0))
+    checker = CollisionChecker.for_fetch(CollisionEnvironment(),
+                                         CollisionCheckerConfig(motion_resolution=0.0, self_padding=0.0))
     Q = _random_configs(np.random.default_rng(2), 3000)
     expected = SphereModel.load().self_collision_free(Q) & layout.within_limits(Q)
     np.testing.assert_array_equal(checker.is_free(Q), expected)

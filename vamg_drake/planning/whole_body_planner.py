@@ -105,7 +105,9 @@ class PlannerConfig:
         travel_torso_arm: torso + 7 arm joints (8,) held while driving. Inside
             the base footprint like `layout.Q_ARM_STOW`, but raised and folded
             with free space around it (the stow pose sits in a tight pocket of
-            self-collision space that sampling-based arm planning rarely leaves).
+            self-collision space that sampling-based arm planning rarely leaves):
+            5 cm from self-collision (unpadded spheres, head sweep included),
+            within the base's 0.35 m radius.
     """
 
     attempt_budget_s: float = 0.2
@@ -127,7 +129,7 @@ class PlannerConfig:
     escape_distance: float = 0.3
     footprint_split_z: float = 0.3
     travel_torso_arm: list[float] = dataclasses.field(
-        default_factory=lambda: [0.006, 1.432, -1.168, -0.587, -0.66, -1.532, 1.079, -1.958])
+        default_factory=lambda: [0.167, 0.43, 1.214, -0.738, 1.461, -0.093, 1.597, -1.9])
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
