@@ -55,8 +55,8 @@ import numpy as np
 from vamg_drake.planning import smoothing
 from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment, densify
 from vamg_drake.planning.hybrid_astar import Costmap2D, Footprint2D, HybridAStar, HybridAStarConfig
-from vamg_drake.planning.rrt_connect import RRTConnectConfig, rrt_connect
 from vamg_drake.planning.trajectory import TimedTrajectory
+from vamg_drake.planning.whole_body_rrt import KernelRRTConfig, WholeBodySearchSpace
 from vamg_drake.robot import layout
 
 
@@ -631,38 +631,13 @@ class WholeBodyPlanner:
 
         RRT-Connect over x = (u, torso + arm) where u is the base's progress
         along the path in seconds of travel at the tracker's speed limits (it
-        may go back: the base then reverses along its own curve). Straight
-        segments in x are checked at the motion resolution: the base moves
-        at most V du [m] and W du [rad] over du, so every sphere moves at most
-        (V + W * lever_theta) du plus the arm's share.
+        may go back: the base then reverses along its own curve); see
+        `WholeBodySearchSpace.along_path`.
         """
-        checker = self.checker
-        d = np.diff(poses, axis=0)
-        dt = np.maximum(np.hypot(d[:, 0], d[:, 1]) / layout.TRACKER_BASE_V,
-                        np.abs(d[:, 2]) / layout.TRACKER_BASE_W)
-        cum = np.concatenate([[0.0], np.cumsum(dt)])
-        total = float(cum[-1])
+        space = WholeBodySearchSpace.along_path(self.checker, poses)
+        total = space.duration
         if total <= 0.0:
             return None
-        base_rate = layout.TRACKER_BASE_V + layout.TRACKER_BASE_W * checker.lever[2]
-        arm_lever = checker.lever[3:]
-        res = checker.config.motion_resolution
-        last = poses.shape[0] - 2
-
-        def states(xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
-            dx = xb - xa
-            bound = abs(dx[0]) * base_rate + float(np.abs(dx[1:]) @ arm_lever)
-            n = max(int(math.ceil(bound / res)), 1) + 1
-            X = xa + np.linspace(0.0, 1.0, n)[:, None] * dx
-            u = X[:, 0]
-            i = np.clip(np.searchsorted(cum, u, side="right") - 1, 0, last)
-            f = np.clip((u - cum[i]) / np.maximum(dt[i], 1e-12), 0.0, 1.0)
-            base = poses[i] + f[:, None] * (poses[i + 1] - poses[i])
-            return np.concatenate([base, X[:, 1:]], axis=1)
-
-        def motion_free(xa, xb):
-            return checker.first_collision(states(xa, xb)) < 0
-
         lo = np.concatenate([[0.0], layout.SAMPLE_LOWER[3:]])
         hi = np.concatenate([[total], layout.SAMPLE_UPPER[3:]])
         c = np.concatenate([[False], layout.IS_CONTINUOUS[3:]])
@@ -672,30 +647,22 @@ class WholeBodyPlanner:
         w = np.concatenate([[1.0, 5.0], np.ones(7)])  # base seconds; torso metres weigh more
         xa = np.concatenate([[0.0], arm_a])
         xb = np.concatenate([[total], arm_b])
-        path, why = rrt_connect(xa, xb, motion_free, lo, hi, rng,
-                                RRTConnectConfig(step=self.config.rrt_step,
-                                                 max_iterations=self.config.rrt_max_iterations),
-                                deadline, w)
+        path, why = space.rrt_connect(xa, xb, lo, hi, w, rng, self._rrt_config(), deadline)
         if path is None:
             if why == "timeout":
                 raise _Timeout()
             return None
         if path.shape[0] > 2:
-            path = smoothing.shortcut(path, motion_free, rng, self.config.arm_shortcut_iterations)
-        out = [states(path[k], path[k + 1])[(1 if k else 0):] for k in range(path.shape[0] - 1)]
+            path = smoothing.shortcut(path, space.motion_free, rng, self.config.arm_shortcut_iterations)
+        out = [space.states(path[k], path[k + 1])[(1 if k else 0):] for k in range(path.shape[0] - 1)]
         return np.concatenate(out)
+
+    def _rrt_config(self) -> KernelRRTConfig:
+        return KernelRRTConfig(step=self.config.rrt_step, max_iterations=self.config.rrt_max_iterations)
 
     def _arm_motion(self, base: np.ndarray, arm_a: np.ndarray, arm_b: np.ndarray, rng, deadline):
         """A fixed-base torso+arm path as whole-body states (N, 11), or None."""
-        checker = self.checker
-        base = np.asarray(base, float)
-
-        def full(a):
-            return np.concatenate([base, a])
-
-        def motion_free(a, b):
-            return checker.motion_free(full(a), full(b))
-
+        space = WholeBodySearchSpace.fixed_base(self.checker, np.asarray(base, float))
         lo = layout.SAMPLE_LOWER[3:]
         hi = layout.SAMPLE_UPPER[3:]
         # Continuous joints: one turn around the ends' midpoint (the ends are
@@ -705,17 +672,14 @@ class WholeBodyPlanner:
         lo = np.where(c, mid - np.pi, lo)
         hi = np.where(c, mid + np.pi, hi)
         w = np.where(np.arange(8) == 0, 5.0, 1.0)  # torso metres weigh more
-        path, why = rrt_connect(arm_a, arm_b, motion_free, lo, hi, rng,
-                                RRTConnectConfig(step=self.config.rrt_step,
-                                                 max_iterations=self.config.rrt_max_iterations),
-                                deadline, w)
+        path, why = space.rrt_connect(arm_a, arm_b, lo, hi, w, rng, self._rrt_config(), deadline)
         if path is None:
             if why == "timeout":
                 raise _Timeout()
             return None
         if path.shape[0] > 2:
-            path = smoothing.shortcut(path, motion_free, rng, self.config.arm_shortcut_iterations)
-        return np.concatenate([np.broadcast_to(base, (path.shape[0], 3)), path], axis=1)
+            path = smoothing.shortcut(path, space.motion_free, rng, self.config.arm_shortcut_iterations)
+        return space.to_configurations(path)
 
     def _refine(self, pieces: list[np.ndarray], timings, rng, deadline) -> np.ndarray | None:
         """Smooths fixed-base pieces, joins and densifies.
