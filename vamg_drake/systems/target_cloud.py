@@ -34,6 +34,8 @@ class TargetCloudConfig:
         radius: points within this distance of the target are kept [m].
         voxel_size: accumulated points are merged on this grid [m].
         max_points: the accumulated cloud is capped (oldest dropped first).
+        memory: points not seen again for this long are dropped [s] (the
+            object may have been nudged; stale copies block every grasp).
         mirror: complete the object by mirroring about the target's vertical axis.
         object_radius: horizontal radius around the target holding the object [m].
         support_clearance: object points lie this far above the support surface [m].
@@ -44,6 +46,7 @@ class TargetCloudConfig:
     radius: float = 0.3
     voxel_size: float = 0.004
     max_points: int = 30000
+    memory: float = 3.0
     mirror: bool = True
     object_radius: float = 0.12
     support_clearance: float = 0.008
@@ -52,10 +55,10 @@ class TargetCloudConfig:
 
 
 def merge_on_grid(points: np.ndarray, voxel: float) -> np.ndarray:
-    """One point per voxel, the newest (last) one winning."""
+    """One point per voxel of its xyz (extra columns ride along), the newest (last) one winning."""
     if points.shape[0] == 0:
         return points
-    keys = np.floor(points / voxel).astype(np.int64)
+    keys = np.floor(points[:, :3] / voxel).astype(np.int64)
     _, index = np.unique(keys[::-1], axis=0, return_index=True)
     return points[::-1][np.sort(index)][::-1]
 
@@ -98,7 +101,7 @@ class TargetCloud(LeafSystem):
         from vamg_drake.robot.spheres import SphereModel
 
         self._spheres = SphereModel.load()
-        self._seen = self.DeclareAbstractState(AbstractValue.Make(np.zeros((0, 3))))
+        self._seen = self.DeclareAbstractState(AbstractValue.Make(np.zeros((0, 4))))  # x, y, z, time
         self._cloud = self.DeclareAbstractState(AbstractValue.Make(np.zeros((0, 3))))
         self.DeclareStateOutputPort("target_cloud", self._cloud)
         self.DeclarePeriodicUnrestrictedUpdateEvent(self._config.period, 0.0, self._update)
@@ -122,9 +125,13 @@ class TargetCloud(LeafSystem):
             new = new[np.all(d > cfg.self_margin, axis=1)]
         if new.shape[0] == 0:
             return EventStatus.Succeeded()
+        t = context.get_time()
         seen = context.get_abstract_state(self._seen).get_value()
-        seen = merge_on_grid(np.concatenate([seen, new]), cfg.voxel_size)[-cfg.max_points:]
+        seen = seen[seen[:, 3] >= t - cfg.memory]
+        seen = merge_on_grid(np.concatenate([seen, np.c_[new, np.full(len(new), t)]]), cfg.voxel_size)
+        seen = seen[-cfg.max_points:]
         state.get_mutable_abstract_state(self._seen).set_value(seen)
+        seen = seen[:, :3]
         cloud = seen
         if cfg.mirror:
             cloud = np.concatenate([seen, mirrored_object_points(seen, p_WT, cfg.object_radius,
