@@ -114,3 +114,28 @@ def test_path_may_enter_the_padding_only_at_its_ends(planner):
     assert planner.path_is_valid(np.stack([away, Q_START]))
     # Passing through the padding in the middle of a path is not allowed.
     assert not planner.path_is_valid(np.stack([away, Q_START, away]))
+
+
+def test_start_inside_the_self_collision_padding_plans():
+    """Tracking error can bring the arm within the self-collision margin; the
+    start is accepted when the unpadded spheres are apart, and the path leaves
+    the margin at once."""
+    from vamg_drake.planning.collision import CollisionChecker, CollisionCheckerConfig
+
+    checker = CollisionChecker.for_fetch(CollisionEnvironment(), CollisionCheckerConfig(self_padding=0.015))
+    planner = WholeBodyPlanner(checker, CONFIG)
+    bare = checker.unpadded()
+    rng = np.random.default_rng(4)
+    Q = rng.uniform(layout.SAMPLE_LOWER, layout.SAMPLE_UPPER, (5000, layout.NQ))
+    Q[:, :3] = 0.0
+    marginal = Q[bare.is_free(Q) & ~checker.is_free(Q)]
+    assert marginal.shape[0] > 0
+    q_start = marginal[0]
+    result = planner.plan(q_start, layout.stow_configuration(2.0, 0.0, 0.0))
+    assert result.success, result.message
+    np.testing.assert_array_equal(result.trajectory.q[0], q_start)
+    assert planner.trajectory_is_valid(result.trajectory)
+    # Overlapping unpadded spheres: in collision.
+    overlapping = Q[~bare.is_free(Q) & layout.within_limits(Q)]
+    r = planner.plan(overlapping[0], layout.stow_configuration(2.0, 0.0, 0.0))
+    assert r.reason == FailureReason.START_IN_COLLISION

@@ -1067,13 +1067,16 @@ class CollisionChecker:
 
     def unpadded(self) -> "CollisionChecker":
         """A copy over the same environment whose spheres are *not* inflated
-        for the motion resolution (radius + `extra_padding` only): the test of
-        whether a configuration actually penetrates something. Motions checked
-        with it need a fine spacing of their own (see `densify`)."""
+        for the motion resolution (radius + `extra_padding` only against the
+        environment) nor by `self_padding` (the tracking margin) against each
+        other: the test of whether a configuration actually penetrates
+        something. Motions checked with it need a fine spacing of their own
+        (see `densify`)."""
         other = object.__new__(CollisionChecker)
         other.__dict__.update(self.__dict__)
         other.padding = self.config.extra_padding
         other.sph_r = self.base_radius + other.padding
+        other.sph_rs = self.base_radius.copy()
         return other
 
     def _args(self):

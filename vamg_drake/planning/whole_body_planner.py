@@ -25,10 +25,11 @@ Budget: `PlannerConfig.attempt_budget_s` per attempt, `max_attempts` attempts.
 
 Start and goal inside the padding. The checker inflates every sphere by half
 the motion resolution (+ `extra_padding`) so that straight motions between
-checked states are free. A configuration is *in collision* only when the
+checked states are free, and by `self_padding` in the self-collision tests
+(a tracking margin). A configuration is *in collision* only when the
 unpadded spheres (radius + `extra_padding`) penetrate the environment, two
-spheres of a self-collision pair overlap, or a joint is outside its limits
-(`CollisionChecker.unpadded`). A start (goal) that is free but inside the
+unpadded spheres of a self-collision pair overlap (or a sphere enters a body
+primitive), or a joint is outside its limits (`CollisionChecker.unpadded`). A start (goal) that is free but inside the
 padding (in closed loop: tracking error, or map points appearing as the robot
 approaches furniture) is accepted: the path first leaves the padding by the
 shortest short motion that reaches a padded-free configuration (the base
