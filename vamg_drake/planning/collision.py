@@ -972,14 +972,17 @@ class CollisionCheckerConfig:
             sphere model (which covers the URDF geometry with slack); between
             checked states the motion is covered by that slack rather than by
             the motion-resolution inflation, which would fragment the arm's
-            free space (many tested sphere pairs sit a few cm apart).
+            free space (many tested sphere pairs sit a few cm apart). The
+            1.5 cm default is the closed loop's margin: tracking the path
+            deviates by up to ~1 cm in the arm, and the simulated Fetch
+            touched its own base with no margin (the stow pose keeps 2 cm).
     """
 
     motion_resolution: float = 0.03
     extra_padding: float = 0.0
     head_pan: float = 0.0
     head_tilt: float = 0.0
-    self_padding: float = 0.0
+    self_padding: float = 0.015
 
 
 class CollisionChecker:
