@@ -121,3 +121,20 @@ def test_empty_map_plans_and_replan_check_sees_new_obstacles():
     blocker = WorldBox("new", np.array([1.0, 0.0, 0.5]), np.eye(3), np.array([0.1, 0.1, 0.5]))
     planner.set_environment(CollisionEnvironment.from_primitives([blocker]))
     assert not planner.trajectory_is_valid(r.trajectory)
+
+
+def test_door_too_narrow_for_the_base_ends_at_the_search_limit(base_checker):
+    """The 2D relaxation lets the search through a 0.68 m door that the base's
+    footprint cannot pass: the expansion-capped search gives up (no hang)."""
+    from vamg_drake.world.primitives import WorldBox
+
+    door, g = 0.68, np.array([3.0, 2.0])
+    side = (0.75 - door / 2) / 2
+    walls = [WorldBox(f"pen/{k}", np.array([*c, 0.5], float), np.eye(3), np.array([*h, 0.5], float))
+             for k, (c, h) in enumerate([
+                 (g + [0.0, -0.7], [0.75, 0.05]), (g + [0.0, 0.7], [0.75, 0.05]), (g + [0.7, 0.0], [0.05, 0.75]),
+                 (g + [-0.7, -(door / 2 + side)], [0.05, side]), (g + [-0.7, door / 2 + side], [0.05, side])])]
+    planner = WholeBodyPlanner.for_fetch(CollisionEnvironment.from_primitives(walls), CONFIG)
+    r = planner.plan(layout.stow_configuration(0.0, 2.0, 0.0), layout.stow_configuration(*g, 0.0))
+    assert not r.success and r.reason == FailureReason.NO_BASE_PATH, r.message
+    assert "search" in r.message  # the search ran (the 2D relaxation did not rule it out)
