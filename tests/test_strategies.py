@@ -301,21 +301,28 @@ def test_real_nav_and_manip_failures(pipeline, scene) -> None:
     assert "standoffs" in cmd.reason
 
 
-def test_real_capmap_placement(pipeline, scene) -> None:
+def test_real_capmap_placement(maps, scene) -> None:
     points, target = scene
     q0 = layout.stow_configuration(-1.5, 0.5, 0.0)
-    bt = make_strategy("capmap_placement", pipeline)
-    cmd = bt.step(PolicyInputs(0.0, q0, points, target))
-    assert cmd.phase == Phase.PREGRASP, bt.tree_status()
-    goal = cmd.q_goal
-    np.testing.assert_allclose(goal[layout.ARM], layout.Q_ARM_STOW)
-    lo, hi = pipeline.config.pregrasp.base_radius
-    assert lo - 0.05 <= np.linalg.norm(goal[:2] - target[:2]) <= hi + 0.05
-    assert layout.within_limits(goal) and pipeline.collision_fn(points, target, goal)(goal[None])[0]
-    assert goal[layout.TORSO] >= layout.TORSO_STOW  # lower, the stowed arm touches the base
-    cmd = bt.step(PolicyInputs(1.0, goal, points, target), MotionEvent.REACHED)
-    assert cmd.phase == Phase.GRASP_MOVE, bt.tree_status()
-    _arm_only(cmd.q_goal, goal)
+    grasped = 0
+    for seed in range(4):  # one base sample per episode: some seeds give no grasp from it
+        pipeline = SubgoalPipeline(maps, seed=seed)
+        bt = make_strategy("capmap_placement", pipeline)
+        cmd = bt.step(PolicyInputs(0.0, q0, points, target))
+        assert cmd.phase == Phase.PREGRASP, bt.tree_status()
+        goal = cmd.q_goal
+        np.testing.assert_allclose(goal[layout.ARM], layout.Q_ARM_STOW)
+        lo, hi = pipeline.config.pregrasp.base_radius
+        assert lo - 0.05 <= np.linalg.norm(goal[:2] - target[:2]) <= hi + 0.05
+        assert layout.within_limits(goal) and pipeline.collision_fn(points, target, goal)(goal[None])[0]
+        assert goal[layout.TORSO] >= layout.TORSO_STOW  # lower, the stowed arm touches the base
+        cmd = bt.step(PolicyInputs(1.0, goal, points, target), MotionEvent.REACHED)
+        if cmd.phase == Phase.GRASP_MOVE:
+            _arm_only(cmd.q_goal, goal)
+            grasped += 1
+        else:
+            assert cmd.phase == Phase.FAILED and cmd.failure in (FailureCategory.REACHABILITY, FailureCategory.SUBGOAL)
+    assert grasped >= 1
 
 
 def test_real_direct_grasping(maps, scene) -> None:

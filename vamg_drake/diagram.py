@@ -95,7 +95,8 @@ class DiagramConfig:
     gaze: GazeConfig = dc.field(default_factory=GazeConfig)
     subgoal: SubgoalPipelineConfig = dc.field(default_factory=SubgoalPipelineConfig)
     behaviour: BehaviourConfig = dc.field(default_factory=BehaviourConfig)
-    policy_system: SubgoalPolicyConfig = dc.field(default_factory=SubgoalPolicyConfig)
+    #: The episode's policy first waits 0.5 s for a few depth frames in the map.
+    policy_system: SubgoalPolicyConfig = dc.field(default_factory=lambda: SubgoalPolicyConfig(start_delay=0.5))
     target_cloud: TargetCloudConfig = dc.field(default_factory=TargetCloudConfig)
     planner: PlannerSystemConfig = dc.field(default_factory=PlannerSystemConfig)
     tracker: TrackerConfig = dc.field(default_factory=TrackerConfig)

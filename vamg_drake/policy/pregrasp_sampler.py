@@ -288,6 +288,7 @@ class PregraspSampler:
         rng: np.random.Generator | None = None,
         max_samples: int | None = None,
         costmap: BaseCostmap | None = None,
+        ee_poses: np.ndarray | None = None,
     ) -> PregraspResult:
         """Samples a pre-grasp configuration for target ``p_WT`` under map points ``p_WM``.
 
@@ -299,6 +300,9 @@ class PregraspSampler:
             rng: random generator (seeded from the config when None).
             max_samples: end-effector sample budget (default num_bases x samples_per_base).
             costmap: a prebuilt costmap (built from p_WM when None).
+            ee_poses: (K, 4, 4) end-effector poses to draw p_ee from instead of
+                the sphere around the target (e.g. the pre-grasp poses of grasp
+                candidates, so that the grasp stage succeeds from the result).
         """
         t0 = time.perf_counter()
         cfg = self.config
@@ -334,7 +338,10 @@ class PregraspSampler:
             X_WB = base_poses(q_base)[0]
             X_BW = np.linalg.inv(X_WB)
             p_BT = X_BW[:3, :3] @ p_WT + X_BW[:3, 3]
-            X_WG = sample_approach_poses(p_WT, cfg.ee_radius, n, rng)
+            if ee_poses is not None and len(ee_poses):
+                X_WG = np.asarray(ee_poses, float)[rng.integers(len(ee_poses), size=n)]
+            else:
+                X_WG = sample_approach_poses(p_WT, cfg.ee_radius, n, rng)
             X_BG = X_BW[None] @ X_WG
             keep = np.ones(n, dtype=bool)
             if cfg.use_capability:

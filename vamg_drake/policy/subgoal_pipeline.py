@@ -28,7 +28,7 @@ from vamg_drake.planning.collision import CollisionChecker, CollisionCheckerConf
 from vamg_drake.policy.arm_chain import base_poses
 from vamg_drake.policy.behaviour_tree import FailureCategory, PolicyInputs, SubgoalProposal, SubgoalSamplers
 from vamg_drake.policy.grasp_candidates import AntipodalGraspSampler, GraspCandidateSource
-from vamg_drake.policy.grasp_ranking import GraspRankingConfig, select_grasp_goal
+from vamg_drake.policy.grasp_ranking import GraspRankingConfig, pregrasp_poses, select_grasp_goal
 from vamg_drake.policy.ik import FastIk
 from vamg_drake.policy.kinematic_maps import KinematicMaps
 from vamg_drake.policy.observe_sampler import ObserveConfig, ObserveSampler
@@ -59,6 +59,9 @@ class SubgoalPipelineConfig:
     grasp_cloud_radius: float = 0.30
     #: A map point with a dense-cloud point this close is left out of the grasp cloud [m].
     dense_cover_radius: float = 0.04
+    #: With a dense target cloud, the pre-grasp sampler's end-effector poses are
+    #: the grasp candidates' pre-grasp poses (else the sphere around the target).
+    pregrasp_from_grasps: bool = True
     #: Enclosure test: rays from the target, blocked by a point within
     #: ``enclosure_ray_radius`` of the ray between ``enclosure_min_distance``
     #: (beyond the target object's own surface) and ``enclosure_range``.
@@ -185,16 +188,7 @@ class SubgoalPipeline:
         problem = self.target_problem(p_WM, p_WT)
         if problem:
             return SubgoalProposal.failure(problem, FailureCategory.PERCEPTION)
-        cloud = p_WM[np.linalg.norm(p_WM - p_WT, axis=1) <= self.config.grasp_cloud_radius]
-        if inputs.p_WS is not None and len(inputs.p_WS):
-            # The dense cloud replaces the coarse map voxels where it has points:
-            # voxel centres lie up to half a voxel off the surface and would
-            # block every finger placement on small objects.
-            dense = np.asarray(inputs.p_WS, dtype=float).reshape(-1, 3)
-            dense = dense[np.linalg.norm(dense - p_WT, axis=1) <= self.config.grasp_cloud_radius]
-            if len(dense):
-                d, _ = cKDTree(dense).query(cloud, distance_upper_bound=self.config.dense_cover_radius)
-                cloud = np.concatenate([dense, cloud[~np.isfinite(d)]])
+        cloud = self._grasp_cloud(inputs, p_WM, p_WT)
         t0 = time.perf_counter()
         candidates = self.grasp_source.propose(cloud, p_WT, self.rng)
         if self.timings is not None:
@@ -213,6 +207,21 @@ class SubgoalPipeline:
         _, head = self.visibility.check(goal.q_pregrasp[None], p_WT)
         return SubgoalProposal(True, goal.q_pregrasp, goal.q_grasp, head[0])
 
+    def _grasp_cloud(self, inputs: PolicyInputs, p_WM: np.ndarray, p_WT: np.ndarray) -> np.ndarray:
+        """The cloud around the target for grasp candidates: the dense cloud where
+        it has points, the map's points elsewhere."""
+        cloud = p_WM[np.linalg.norm(p_WM - p_WT, axis=1) <= self.config.grasp_cloud_radius]
+        if inputs.p_WS is not None and len(inputs.p_WS):
+            # The dense cloud replaces the coarse map voxels where it has points:
+            # voxel centres lie up to half a voxel off the surface and would
+            # block every finger placement on small objects.
+            dense = np.asarray(inputs.p_WS, dtype=float).reshape(-1, 3)
+            dense = dense[np.linalg.norm(dense - p_WT, axis=1) <= self.config.grasp_cloud_radius]
+            if len(dense):
+                d, _ = cKDTree(dense).query(cloud, distance_upper_bound=self.config.dense_cover_radius)
+                cloud = np.concatenate([dense, cloud[~np.isfinite(d)]])
+        return cloud
+
     def sample_pregrasp(self, inputs: PolicyInputs) -> SubgoalProposal:
         """Whole-body pre-grasp configuration (paper Algorithm 3)."""
         p_WM, q = self._points(inputs), np.asarray(inputs.q, float)
@@ -222,7 +231,15 @@ class SubgoalPipeline:
             return SubgoalProposal.failure(problem, FailureCategory.PERCEPTION)
         costmap = BaseCostmap.from_points(p_WM, self.config.pregrasp.costmap,
                                           include_xy=np.stack([p_WT[:2], q[:2]]), robot_xy=q[:2])
-        result = self.pregrasp.sample(p_WM, p_WT, q, self.collision_fn(p_WM, p_WT, q), self.rng, costmap=costmap)
+        ee_poses = None
+        if self.config.pregrasp_from_grasps and inputs.p_WS is not None and len(inputs.p_WS):
+            # Once the target is seen densely, aim p_ee at its grasp candidates'
+            # pre-grasp poses: the grasp stage then has a grasp from the result.
+            candidates = self.grasp_source.propose(self._grasp_cloud(inputs, p_WM, p_WT), p_WT, self.rng)
+            if len(candidates):
+                ee_poses = pregrasp_poses(candidates.X_WG, self.config.ranking.pregrasp_offset)
+        result = self.pregrasp.sample(p_WM, p_WT, q, self.collision_fn(p_WM, p_WT, q), self.rng, costmap=costmap,
+                                      ee_poses=ee_poses)
         if not result.success:
             category = FailureCategory.REACHABILITY if result.funnel["ik"] == 0 else FailureCategory.SUBGOAL
             return SubgoalProposal.failure(result.failure_reason, category)

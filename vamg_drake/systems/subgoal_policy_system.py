@@ -38,6 +38,9 @@ class SubgoalPolicyConfig:
 
     #: Update period [s].
     period: float = 0.1
+    #: The policy holds still until this time, so its first goal sees a map
+    #: built from a few depth frames rather than an empty one [s].
+    start_delay: float = 0.0
     #: Without a motion_feedback input, a goal counts as reached when every joint
     #: of q is within this distance of it [m or rad].
     reach_tolerance: float = 0.03
@@ -122,11 +125,16 @@ class SubgoalPolicy(LeafSystem):
         p_WM = np.zeros((0, 3)) if snapshot is None else np.asarray(snapshot.points, dtype=float)
         target = np.asarray(self._target_port.Eval(context), dtype=float)
         cloud = np.asarray(self._cloud_port.Eval(context), dtype=float) if self._cloud_port.HasValue(context) else None
+        if context.get_time() < self._config.start_delay - 1e-9:
+            return EventStatus.Succeeded()
         inputs = PolicyInputs(context.get_time(), q, p_WM, target, cloud)
         event = self._event(context, q, command, state)
         new_command = self._behaviour.step(inputs, event)
         if new_command.goal_id != command.goal_id or new_command.phase != command.phase:
             _log.info("SubgoalPolicy t=%.2f: %s (%s)", context.get_time(), new_command.phase.value, new_command.reason)
+            skipped = {stage: reason for stage, (reason, _) in self._behaviour.stage_failures.items()}
+            if skipped:
+                _log.info("SubgoalPolicy t=%.2f: stage failures so far: %s", context.get_time(), skipped)
         state.get_mutable_abstract_state(self._command_index).set_value(new_command)
         state.get_mutable_discrete_state(self._gripper_index).set_value([new_command.gripper_opening])
         return EventStatus.Succeeded()
