@@ -270,9 +270,12 @@ class WholeBodyPlanner:
             if len(layers) > 1:
                 # One grid holding every band: the lowest origin and the largest
                 # extent per axis (bands may be cropped differently).
+                # Offsets are rounded to whole cells, so the extent is taken
+                # after rounding (bands need not share a grid phase).
                 origin = np.min([l[1] for l in layers], axis=0)
-                end = np.max([np.asarray(l[1]) + res * np.asarray(l[0].shape) for l in layers], axis=0)
-                shape = tuple(int(v) for v in np.rint((end - origin) / res))
+                offsets = [np.rint((np.asarray(l[1]) - origin) / res).astype(int) for l in layers]
+                shape = tuple(int(v) for v in np.max([o + np.asarray(l[0].shape[:2]) for o, l in zip(offsets, layers)],
+                                                     axis=0))
                 dist = np.stack([_pad_to(l[0], l[1], origin, res, shape) for l in layers])
             else:
                 dist = layers[0][0]
