@@ -59,6 +59,10 @@ class SuiteConfig:
         room: generator parameters (``dynamic``, ``moving_obstacle`` and
             ``time_limit`` above override its fields).
         shortest_path: the SPL grid.
+        replicacad_scenes: ReplicaCAD scene instances to draw the rooms from
+            instead of the procedural generator (cycled over ``scenes``; each
+            target slot is a fresh generator seed in that scene); the dataset
+            is looked up with `vamg_drake.world.replicacad.find_replicacad_dir`.
     """
 
     name: str = ""
@@ -73,6 +77,7 @@ class SuiteConfig:
     oracle_config: OracleGraspConfig = field(default_factory=OracleGraspConfig)
     room: RoomGeneratorConfig = field(default_factory=RoomGeneratorConfig)
     shortest_path: ShortestPathConfig = field(default_factory=ShortestPathConfig)
+    replicacad_scenes: list[str] = field(default_factory=list)
 
     def room_config(self) -> RoomGeneratorConfig:
         return dc.replace(self.room, dynamic=self.dynamic, moving_obstacle=self.moving_obstacle, time_limit=self.time_limit)
@@ -85,6 +90,8 @@ SUITES: dict[str, SuiteConfig] = {
     "dynamic": SuiteConfig(name="dynamic", dynamic=True),
     "dynamic_moving": SuiteConfig(name="dynamic_moving", dynamic=True, moving_obstacle=True),
     "trigger_sweep": SuiteConfig(name="trigger_sweep", dynamic=True, targets_per_scene=5, trigger_distances=[0.5, 1.0, 1.5, 2.0, 2.5]),
+    "replicacad": SuiteConfig(name="replicacad", scenes=3, targets_per_scene=5,
+                              replicacad_scenes=["apt_0", "v3_sc0_staging_00", "v3_sc1_staging_00"]),
 }
 
 
@@ -213,6 +220,8 @@ def validate_suite_files(suite: Suite) -> None:
 
 
 def _build(config: SuiteConfig, directory: Path, progress: bool) -> Suite:
+    if config.replicacad_scenes:
+        return _build_replicacad(config, directory, progress)
     from tqdm import tqdm
 
     room_config = config.room_config()
@@ -256,6 +265,49 @@ def _build(config: SuiteConfig, directory: Path, progress: bool) -> Suite:
             save_scenario(scenario, directory / file)
             scenarios.append(SuiteScenario(sid, scene, slot, name, file, shortest_base_path(scenario, config.shortest_path)))
     bar.close()
+    return _write_manifest(config, directory, scenarios, excluded)
+
+
+def _build_replicacad(config: SuiteConfig, directory: Path, progress: bool) -> Suite:
+    """Scenarios in ReplicaCAD scenes: scene k is replicacad_scenes[k % n], slot t is generator seed 1000 k + t."""
+    from tqdm import tqdm
+
+    from vamg_drake.world.replicacad import ReplicaCadError, find_replicacad_dir, replicacad_scenario
+
+    dataset = find_replicacad_dir()
+    if dataset is None:
+        raise SuiteError(f"suite {config.name}: no ReplicaCAD dataset found (set MS_ASSET_DIR, VAMG_REPLICACAD_DIR, "
+                         "or download it with `python -m mani_skill.utils.download_asset ReplicaCAD`)")
+    (directory / "scenarios").mkdir(parents=True, exist_ok=True)
+    scenarios: list[SuiteScenario] = []
+    excluded: list[dict] = []
+    bar = tqdm(total=config.scenes * config.targets_per_scene, desc=f"suite {config.name}", disable=not progress, leave=False)
+    for scene in range(config.first_scene_seed, config.first_scene_seed + config.scenes):
+        scene_name = config.replicacad_scenes[scene % len(config.replicacad_scenes)]
+        for slot in range(config.targets_per_scene):
+            bar.update(1)
+            try:
+                scenario = replicacad_scenario(scene_name, scene * 1000 + slot, dataset)
+            except (ReplicaCadError, GenerationError) as e:
+                excluded.append({"scene": scene, "object": None, "reason": f"{scene_name}: {e}"})
+                continue
+            scenario.time_limit = config.time_limit
+            if config.oracle:
+                result = check_graspable(scenario, scenario.target, config.oracle_config)
+                if not result.graspable:
+                    excluded.append({"scene": scene, "object": scenario.target,
+                                     "reason": f"oracle grasp check: {result.reason}"})
+                    continue
+            sid = f"s{scene:04d}_t{slot:02d}"
+            scenario.name = f"{config.name}_{scene_name}_{sid}"
+            file = f"scenarios/{sid}.yaml"
+            save_scenario(scenario, directory / file)
+            scenarios.append(SuiteScenario(sid, scene, slot, scenario.target, file, None))
+    bar.close()
+    return _write_manifest(config, directory, scenarios, excluded)
+
+
+def _write_manifest(config: SuiteConfig, directory: Path, scenarios: list, excluded: list) -> Suite:
     manifest = {"config": _config_json(config), "scenarios": [dc.asdict(s) for s in scenarios], "excluded": excluded}
     tmp = _manifest_path(directory).with_suffix(".tmp")
     tmp.write_text(json.dumps(manifest, indent=1))
