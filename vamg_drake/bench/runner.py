@@ -111,7 +111,7 @@ def _record(spec: EpisodeSpec, status: str, wall: float, result: dict | None = N
         key=spec.key, suite=spec.suite, method=spec.method, scene=spec.scene, target_index=spec.target_index,
         target=spec.target, trigger_distance=spec.trigger_distance, run_seed=spec.run_seed,
         scenario=result.get("scenario", spec.scenario_id), status=status,
-        planning_kind=result.get("planning_kind", "") or "", detail=result.get("detail", "") or "",
+        planning_kind=result.get("kind", "") or "", detail=result.get("detail", "") or "",
         sim_time=float(result.get("sim_time", 0.0) or 0.0), wall_time=wall,
         path_length=float(result.get("path_length", 0.0) or 0.0), shortest_path=spec.shortest_path,
         timings=result.get("timings", {}) or {}, phases=result.get("phases", []) or [], error=error,
