@@ -141,7 +141,9 @@ def test_planner_handles_costmap_bands_on_different_grids():
 
     scenario = box_room_scenario(time_limit=5.0)
     scenario.robot_start = PlanarPose(-1.0, 0.5, 0.0)
-    ed = build_diagram(scenario, DiagramConfig())
+    config = DiagramConfig(start_sweep=0.0)
+    config.policy_system.start_delay = 0.0
+    ed = build_diagram(scenario, config)
     simulator = Simulator(ed.diagram)
     simulator.Initialize()
     for t in np.arange(0.1, 1.01, 0.1):

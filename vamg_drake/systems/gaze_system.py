@@ -35,12 +35,18 @@ class GazeOptimizer(LeafSystem):
     Progress defaults to the context time (the planner's trajectories are
     shifted onto the simulation clock). A rejected input (NaN configuration,
     malformed trajectory) is logged and the previous command is held.
+
+    With ``start_sweep`` > 0 the head first looks left, then right (at
+    ``sweep_tilt``) for that long, so the first plans know the room beside
+    the robot, where an in-place turn sweeps the torso.
     """
 
     def __init__(self, intrinsics: CameraIntrinsics, config: GazeConfig | None = None, period: float = 0.1,
-                 timings: ModuleTimings | None = None):
+                 timings: ModuleTimings | None = None, start_sweep: float = 0.0, sweep_tilt: float = 0.8):
         super().__init__()
         self._timings = timings
+        self._start_sweep = start_sweep
+        self._sweep_tilt = sweep_tilt
         self._core = GazeOptimizerCore(intrinsics, config)
         self._cameras = FetchGazeCameras(self._core.candidates)
         self._trajectory_port = self.DeclareAbstractInputPort("trajectory", AbstractValue.Make(None))
@@ -70,6 +76,11 @@ class GazeOptimizer(LeafSystem):
         value.set_value(sweep)
 
     def _update(self, context, discrete_state) -> EventStatus:
+        t = context.get_time()
+        if t < self._start_sweep:
+            pan = layout.HEAD_PAN_LIMITS[0] if t < 0.3 * self._start_sweep else layout.HEAD_PAN_LIMITS[1]
+            discrete_state.get_mutable_vector(self._command_index).SetFromVector([pan, self._sweep_tilt])
+            return EventStatus.Succeeded()
         q = np.asarray(self._q_port.Eval(context), dtype=float)
         target = None
         if self._target_port.HasValue(context):
