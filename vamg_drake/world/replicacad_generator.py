@@ -20,7 +20,6 @@ found again at build time (``find_replicacad_dir``). Same seed, same dataset,
 same config -> the same scenario.
 """
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -39,8 +38,18 @@ from vamg_drake.world.replicacad import (
     register_replicacad,
     resolve_replicacad_dir,
 )
-from vamg_drake.world.rooms import FloorGrid, GenerationError, RoomGeneratorConfig, _components, _drop, _r, _reach_mask
-from vamg_drake.world.scenario import PlacedObject, PlanarPose, ReplicaCadScene, Room, Scenario, SupportSurface, validate_scenario
+from vamg_drake.world.rooms import (
+    FloorGrid,
+    GenerationError,
+    RoomGeneratorConfig,
+    _components,
+    _drop,
+    _r,
+    _reach_mask,
+    place_clutter,
+    sample_start_pose,
+)
+from vamg_drake.world.scenario import PlacedObject, ReplicaCadScene, Room, Scenario, SupportSurface, validate_scenario
 from vamg_drake.world.scene_geometry import SceneGeometryConfig, add_ycb_body
 from vamg_drake.world.ycb import YCB_OBJECTS, load_ycb_asset
 
@@ -200,23 +209,10 @@ def _try_generate(scene, seed, layout, room, grid, reachable, rng, config: Repli
     target = place(chosen[0], surface, [], extra=lambda p: bool(np.any(_reach_mask(grid, reachable, p, reach))))
     if target is None:
         return None
-    objects = [target]
-    areas = np.array([abs(np.prod(s.primitive.footprint().max(0) - s.primitive.footprint().min(0))) for s in surfaces])
-    for name in chosen[1:]:
-        s = surfaces[int(rng.choice(len(surfaces), p=areas / areas.sum()))]
-        placed = place(name, s, objects)
-        if placed is not None:
-            objects.append(placed)
-
-    target_xy = np.asarray(target.xyz[:2])
-    d = np.linalg.norm(grid.centers - target_xy, axis=-1)
-    lo_d, hi_d = objects_config.start_distance_range
-    start_cells = np.argwhere(reachable & (d >= lo_d) & (d <= hi_d))
-    if len(start_cells) == 0:
+    objects = place_clutter(target, chosen[1:], surfaces, rng, place)
+    start = sample_start_pose(grid, reachable, target.xyz[:2], objects_config.start_distance_range, rng)
+    if start is None:
         return None
-    i, j = start_cells[int(rng.integers(len(start_cells)))]
-    start_xy = grid.centers[i, j]
-    start = PlanarPose(_r(start_xy[0]), _r(start_xy[1]), _r(rng.uniform(-math.pi, math.pi)))
     return Scenario(
         name=f"replicacad_{scene}_{seed:05d}",
         seed=int(seed),

@@ -525,23 +525,12 @@ def _try_generate(seed: int, rng: np.random.Generator, config: RoomGeneratorConf
     target = _drop(chosen[0], surface, [], rng, config, accept_xy=lambda p: bool(np.any(_reach_mask(grid, reachable, p, config.reach_radius))))
     if target is None:
         return None
-    objects = [target]
-    areas = np.array([abs(np.prod(s.primitive.footprint().max(0) - s.primitive.footprint().min(0))) for s in surfaces])
-    for name in chosen[1:]:
-        s = surfaces[int(rng.choice(len(surfaces), p=areas / areas.sum()))]
-        placed = _drop(name, s, objects, rng, config)
-        if placed is not None:
-            objects.append(placed)
-
-    target_xy = np.asarray(target.xyz[:2])
-    d = np.linalg.norm(grid.centers - target_xy, axis=-1)
-    lo_d, hi_d = config.start_distance_range
-    start_cells = np.argwhere(reachable & (d >= lo_d) & (d <= hi_d))
-    if len(start_cells) == 0:
+    objects = place_clutter(target, chosen[1:], surfaces, rng, lambda name, s, objs: _drop(name, s, objs, rng, config))
+    start = sample_start_pose(grid, reachable, target.xyz[:2], config.start_distance_range, rng)
+    if start is None:
         return None
-    i, j = start_cells[int(rng.integers(len(start_cells)))]
-    start_xy = grid.centers[i, j]
-    start = PlanarPose(_r(start_xy[0]), _r(start_xy[1]), _r(rng.uniform(-math.pi, math.pi)))
+    target_xy = np.asarray(target.xyz[:2])
+    start_xy = np.array([start.x, start.y])
 
     events = []
     if config.dynamic:
@@ -637,3 +626,27 @@ def retarget_scenario(scenario: Scenario, target: str, seed: int, config: RoomGe
     validate_scenario(out, f"retarget_scenario({scenario.name}, {target})")
     return out
 
+
+def place_clutter(target, names, surfaces, rng: np.random.Generator, place) -> list:
+    """[target] plus each of ``names`` dropped by ``place(name, surface, objects)``
+    on a support surface drawn in proportion to its area (None = not placed)."""
+    objects = [target]
+    areas = np.array([abs(np.prod(s.primitive.footprint().max(0) - s.primitive.footprint().min(0))) for s in surfaces])
+    for name in names:
+        s = surfaces[int(rng.choice(len(surfaces), p=areas / areas.sum()))]
+        placed = place(name, s, objects)
+        if placed is not None:
+            objects.append(placed)
+    return objects
+
+
+def sample_start_pose(grid, reachable: np.ndarray, target_xy, distance_range, rng: np.random.Generator):
+    """A random-heading start on a reachable cell within ``distance_range`` of the target, or None."""
+    d = np.linalg.norm(grid.centers - np.asarray(target_xy, float), axis=-1)
+    lo_d, hi_d = distance_range
+    start_cells = np.argwhere(reachable & (d >= lo_d) & (d <= hi_d))
+    if len(start_cells) == 0:
+        return None
+    i, j = start_cells[int(rng.integers(len(start_cells)))]
+    start_xy = grid.centers[i, j]
+    return PlanarPose(_r(start_xy[0]), _r(start_xy[1]), _r(rng.uniform(-math.pi, math.pi)))
