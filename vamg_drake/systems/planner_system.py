@@ -81,11 +81,6 @@ class PlannerSystemConfig:
             the trajectory was invalidated (the closed-loop-replanning baseline) [s].
         linear_speed_fraction: linear motions (approach, lift) move at this
             fraction of the joint velocity limits.
-        escape_distance: when the robot's q is (marginally) in collision with a
-            new map, the plan starts with a straight escape to a free
-            configuration within this base distance (the previous path behind
-            the robot, or backing off along the heading) [m].
-        max_escape_tries: escape configurations tried.
         recheck_period: the collision environment is rebuilt from a newer map
             (and the trajectory re-checked) at most this often, except when a
             new goal must be planned at once: building the distance field of a
@@ -102,8 +97,6 @@ class PlannerSystemConfig:
     max_replans: int = 8
     replan_period: float = 0.0
     linear_speed_fraction: float = 0.25
-    escape_distance: float = 0.3
-    max_escape_tries: int = 4
     recheck_period: float = 0.3
     planner: PlannerConfig = dc.field(default_factory=PlannerConfig)
 
@@ -185,7 +178,7 @@ class MotionSupervisor:
                 _log.warning("motion t=%.2f: goal %d invalidated more than %d times", t, goal.goal_id, cfg.max_replans)
                 return dc.replace(plan, trajectory=None, success=False, reason=REPLAN_LIMIT_REASON), MotionEvent.FAILED
             _log.info("motion t=%.2f: trajectory invalidated by map %d; replanning", t, revision)
-        new = self._plan(goal, q, t, revision, previous=plan.trajectory)
+        new = self._plan(goal, q, t, revision)
         new = dc.replace(new, replans=plan.replans + (0 if periodic else 1))
         if periodic:
             # The baseline keeps executing the old plan when a periodic replan fails.
@@ -212,47 +205,7 @@ class MotionSupervisor:
             return PlannedTrajectory(goal.goal_id, traj, True, "", revision, motion="linear"), MotionEvent.NONE
         return PlannedTrajectory(goal.goal_id, None, True, "", revision, motion=goal.motion), MotionEvent.NONE
 
-    def escape_configurations(self, q: np.ndarray, previous: TimedTrajectory | None) -> list[np.ndarray]:
-        """Collision-free configurations near q to plan from when q itself is
-        (marginally) in collision: the previous trajectory's waypoints behind
-        the robot (most recent first), then the base backed off along its heading."""
-        candidates = []
-        if previous is not None:
-            k = nearest_waypoint(previous, q)
-            behind = previous.q[:k + 1][::-1]
-            dist = np.cumsum(np.r_[0.0, np.linalg.norm(np.diff(behind[:, :2], axis=0), axis=1)])
-            candidates += list(behind[dist <= self.config.escape_distance])
-        c, s_ = np.cos(q[layout.THETA]), np.sin(q[layout.THETA])
-        for d in np.arange(0.05, self.config.escape_distance + 1e-9, 0.05):
-            for sign in (-1.0, 1.0):
-                qe = q.copy()
-                qe[:2] += sign * d * np.array([c, s_])
-                candidates.append(qe)
-        if not candidates:
-            return []
-        Q = np.asarray(candidates)
-        free = self.planner.checker.is_free(Q)
-        return list(Q[free])
-
-    def _plan(self, goal: SubgoalCommand, q: np.ndarray, t: float, revision: int,
-              previous: TimedTrajectory | None = None) -> PlannedTrajectory:
-        plan = self._plan_from(goal, q, t, revision)
-        if plan.reason != FailureReason.START_IN_COLLISION:
-            return plan
-        for qe in self.escape_configurations(q, previous)[: self.config.max_escape_tries]:
-            escape = linear_trajectory(q, qe, t, self.config.linear_speed_fraction)
-            rest = self._plan_from(goal, escape.q[-1], escape.end_time, revision)
-            if rest.success:
-                _log.info("motion t=%.2f: start in collision; escaping %.2f m first", t,
-                          float(np.linalg.norm(qe[:2] - q[:2])))
-                q_rest = rest.trajectory.q
-                q_rest = q_rest + (escape.q[-1] - q_rest[0])  # same unwrapping as the escape
-                traj = TimedTrajectory(np.r_[escape.times, rest.trajectory.times[1:]],
-                                       np.concatenate([escape.q, q_rest[1:]]))
-                return dc.replace(rest, trajectory=traj)
-        return plan
-
-    def _plan_from(self, goal: SubgoalCommand, q: np.ndarray, t: float, revision: int) -> PlannedTrajectory:
+    def _plan(self, goal: SubgoalCommand, q: np.ndarray, t: float, revision: int) -> PlannedTrajectory:
         self.last_replan_time = t
         t0 = time.perf_counter()
         try:
