@@ -94,6 +94,7 @@ class SubgoalPipeline:
         self.observe = ObserveSampler(self.visibility, self.config.observe)
         self.spheres = SphereModel.load()
         self.rng = np.random.default_rng(seed)
+        self._candidates: tuple | None = None  # (inputs, GraspCandidates) of the last proposal
         self._cache_key: tuple | None = None
         self._cache: tuple | None = None
 
@@ -188,11 +189,7 @@ class SubgoalPipeline:
         problem = self.target_problem(p_WM, p_WT)
         if problem:
             return SubgoalProposal.failure(problem, FailureCategory.PERCEPTION)
-        cloud = self._grasp_cloud(inputs, p_WM, p_WT)
-        t0 = time.perf_counter()
-        candidates = self.grasp_source.propose(cloud, p_WT, self.rng)
-        if self.timings is not None:
-            self.timings.add("grasp_candidates", 1e3 * (time.perf_counter() - t0))
+        candidates = self._grasp_candidates(inputs, p_WM, p_WT)
         if len(candidates) == 0:
             return SubgoalProposal.failure(f"no grasp candidates: {candidates.failure_reason}", FailureCategory.PERCEPTION)
         X_WB = base_poses(q)[0]
@@ -206,6 +203,18 @@ class SubgoalPipeline:
             return SubgoalProposal.failure(goal.failure_reason, category)
         _, head = self.visibility.check(goal.q_pregrasp[None], p_WT)
         return SubgoalProposal(True, goal.q_pregrasp, goal.q_grasp, head[0])
+
+    def _grasp_candidates(self, inputs: PolicyInputs, p_WM: np.ndarray, p_WT: np.ndarray):
+        """The grasp candidates for these inputs, proposed once per tick: the
+        grasp and pre-grasp stages of one tree tick share the same inputs."""
+        if self._candidates is not None and self._candidates[0] is inputs:
+            return self._candidates[1]
+        t0 = time.perf_counter()
+        candidates = self.grasp_source.propose(self._grasp_cloud(inputs, p_WM, p_WT), p_WT, self.rng)
+        if self.timings is not None:
+            self.timings.add("grasp_candidates", 1e3 * (time.perf_counter() - t0))
+        self._candidates = (inputs, candidates)
+        return candidates
 
     def _grasp_cloud(self, inputs: PolicyInputs, p_WM: np.ndarray, p_WT: np.ndarray) -> np.ndarray:
         """The cloud around the target for grasp candidates: the dense cloud where
@@ -235,7 +244,7 @@ class SubgoalPipeline:
         if self.config.pregrasp_from_grasps and inputs.p_WS is not None and len(inputs.p_WS):
             # Once the target is seen densely, aim p_ee at its grasp candidates'
             # pre-grasp poses: the grasp stage then has a grasp from the result.
-            candidates = self.grasp_source.propose(self._grasp_cloud(inputs, p_WM, p_WT), p_WT, self.rng)
+            candidates = self._grasp_candidates(inputs, p_WM, p_WT)
             if len(candidates):
                 ee_poses = pregrasp_poses(candidates.X_WG, self.config.ranking.pregrasp_offset)
         result = self.pregrasp.sample(p_WM, p_WT, q, self.collision_fn(p_WM, p_WT, q), self.rng, costmap=costmap,
