@@ -107,3 +107,37 @@ def test_edt_2d_matches_scipy():
         np.testing.assert_allclose(edt_2d(occ, 0.05), ndimage.distance_transform_edt(~occ, sampling=0.05),
                                    atol=1e-5)
     assert np.all(np.isinf(edt_2d(np.zeros((4, 5), bool), 0.05)))
+
+
+def test_point_field_decides_the_shell_exactly():
+    """A field built from points answers sphere tests exactly against the
+    points (the shell D - sqrt(3) h <= r < D + sqrt(3) h is settled by the
+    points, not counted as collision); one from bare occupancy stays
+    conservative."""
+    rng = np.random.default_rng(7)
+    # A noisy table top at 0.75 m sampled like the map (one point per 3 cm voxel).
+    xs, ys = np.meshgrid(np.arange(0.5, 1.5, 0.03), np.arange(-0.5, 0.5, 0.03))
+    points = np.stack([xs.ravel(), ys.ravel(), np.full(xs.size, 0.75)], 1) + rng.uniform(-0.01, 0.01, (xs.size, 3))
+    env = CollisionEnvironment.from_points(points, resolution=0.03)
+    assert env.field.has_points
+    checker = CollisionChecker.for_fetch(env, CollisionCheckerConfig(motion_resolution=0.0, self_padding=0.0))
+    bare = CollisionChecker.for_fetch(
+        CollisionEnvironment.from_occupancy(env.field.occupancy, env.field.origin, 0.03),
+        CollisionCheckerConfig(motion_resolution=0.0, self_padding=0.0))
+    # Whole-body configurations with the gripper swept over and into the top.
+    Q = np.tile(np.array([0.0, 0.0, 0.0, 0.3, 0.0, 0.4, 0.0, 1.2, 0.0, 0.9, 0.0]), (600, 1))
+    Q[:, 0] = rng.uniform(-0.4, 0.2, 600)
+    Q[:, 3] = rng.uniform(0.0, 0.38, 600)
+    Q[:, 5] = rng.uniform(-0.2, 0.9, 600)
+    self_ok = CollisionChecker.for_fetch(CollisionEnvironment(), checker.config).is_free(Q)
+    centers = checker.sphere_centers(Q)
+    d = np.linalg.norm(centers[:, :, None, :] - points[None, None], axis=3).min(axis=2)
+    truth = self_ok & np.all(d > checker.sph_r[None], axis=1)
+    got = checker.is_free(Q)
+    np.testing.assert_array_equal(got, truth)
+    conservative = bare.is_free(Q)
+    assert not np.any(conservative & ~truth)
+    # The exact test accepts configurations the bound rejected (the table-side
+    # grasps the closed loop needs), and there are collisions among them.
+    assert np.sum(got & ~conservative) >= 10
+    assert np.sum(~truth & self_ok) >= 10

@@ -16,10 +16,16 @@ every obstacle point p lies in an occupied cell whose centre v is within
 (sqrt(3)/2) h of p; a query centre c is looked up at its nearest cell centre
 g, within (sqrt(3)/2) h of c; the field stores D(g) = min_v |g - v| exactly
 (scipy's exact EDT). By the triangle inequality
-    |c - p| >= |g - v| - |c - g| - |p - v| >= D(g) - sqrt(3) h,
-so a sphere (c, r) is certainly free when D(g) - sqrt(3) h > r. Cells outside
-the grid are free: the grid is padded by more than the largest sphere radius
-plus the bound around every obstacle cell.
+    D(g) - sqrt(3) h <= |c - p| <= D(g) + sqrt(3) h,
+so a sphere (c, r) is certainly free when D(g) - sqrt(3) h > r and certainly
+hits an occupied cell's point when D(g) + sqrt(3) h <= r. A field built from
+points (`DistanceField.from_points`, the map) keeps them, indexed by cell, and
+settles the shell in between exactly: the sphere is free iff no point lies
+within r of c (the obstacle set is the map's points; the motion padding covers
+the surface between samples). A field built from bare occupancy (no points)
+counts the whole shell as collision. Cells outside the grid are free: the grid
+is padded by more than the largest sphere radius plus the bound around every
+obstacle cell.
 
 Motion checks: configurations along a motion are checked at a spacing where no
 sphere centre moves more than `motion_resolution` (a rigorous per-joint lever
@@ -51,6 +57,11 @@ class DistanceField:
         resolution: cell size h [m].
         margin: the conservative discretization bound sqrt(3) h.
         occupancy: (nx, ny, nz) bool occupied cells.
+        points: (N, 3) the obstacle points grouped by cell (empty for a field
+            built from bare occupancy), for exact tests near obstacles.
+        cell_keys: (M,) sorted flat indices of the cells holding points.
+        cell_start: (M + 1,) points[cell_start[m]:cell_start[m + 1]] lie in
+            cell cell_keys[m].
     """
 
     dist: np.ndarray
@@ -58,6 +69,14 @@ class DistanceField:
     resolution: float
     margin: float
     occupancy: np.ndarray
+    points: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))
+    cell_keys: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))
+    cell_start: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(1, np.int64))
+
+    @property
+    def has_points(self) -> bool:
+        """Whether near-obstacle tests are exact against the points."""
+        return self.points.shape[0] > 0
 
     @property
     def num_occupied(self) -> int:
@@ -105,7 +124,18 @@ class DistanceField:
         shape = idx.max(axis=0) + 1
         occ = np.zeros(shape, dtype=bool)
         occ[idx[:, 0], idx[:, 1], idx[:, 2]] = True
-        return DistanceField.from_occupancy(occ, lo + 0.5 * resolution, resolution, pad)
+        f = DistanceField.from_occupancy(occ, lo + 0.5 * resolution, resolution, pad)
+        # Index the points by their cell of the padded grid.
+        n_pad = int(round((lo[0] + 0.5 * resolution - f.origin[0]) / resolution))
+        idx += n_pad
+        ny, nz = f.dist.shape[1], f.dist.shape[2]
+        flat = (idx[:, 0] * ny + idx[:, 1]) * nz + idx[:, 2]
+        order = np.argsort(flat, kind="stable")
+        flat = flat[order]
+        keys, start = np.unique(flat, return_index=True)
+        cell_start = np.append(start, flat.shape[0]).astype(np.int64)
+        return dataclasses.replace(f, points=np.ascontiguousarray(points[order]),
+                                   cell_keys=np.ascontiguousarray(keys, np.int64), cell_start=cell_start)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -539,7 +569,7 @@ def _env_aabbs(box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, out):
 @numba.njit(cache=True)
 def _config_free(Q, b, head, parent, X_PJ, joint_type, axis, var_index,
                  sph_link, sph_c, sph_r, sph_rs, pairs, q_lo, q_hi, T, C, PW,
-                 has_field, dist, origin, h, margin,
+                 has_field, dist, origin, h, margin, pts, cell_keys, cell_start,
                  box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
                  prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere,
                  env_aabb, near):
@@ -578,8 +608,12 @@ def _config_free(Q, b, head, parent, X_PJ, joint_type, axis, var_index,
             iy = int(math.floor((cy - origin[1]) / h + 0.5))
             iz = int(math.floor((cz - origin[2]) / h + 0.5))
             if 0 <= ix < dist.shape[0] and 0 <= iy < dist.shape[1] and 0 <= iz < dist.shape[2]:
-                if dist[ix, iy, iz] - margin <= r:
-                    return False
+                d = dist[ix, iy, iz]
+                if d - margin <= r:
+                    if pts.shape[0] == 0 or d + margin <= r:
+                        return False
+                    if _sphere_hits_points(cx, cy, cz, r, dist, origin, h, pts, cell_keys, cell_start):
+                        return False
     # Broad phase: primitives whose AABB overlaps the robot's.
     n_near = 0
     for k in range(env_aabb.shape[0]):
@@ -673,7 +707,7 @@ def _config_free(Q, b, head, parent, X_PJ, joint_type, axis, var_index,
 @numba.njit(cache=True)
 def _batch_free(Q, head, parent, X_PJ, joint_type, axis, var_index,
                 sph_link, sph_c, sph_r, sph_rs, pairs, q_lo, q_hi,
-                has_field, dist, origin, h, margin,
+                has_field, dist, origin, h, margin, pts, cell_keys, cell_start,
                 box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
                 prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere,
                 order, stop_at_first, out):
@@ -692,7 +726,7 @@ def _batch_free(Q, head, parent, X_PJ, joint_type, axis, var_index,
         b = order[n]
         ok = _config_free(Q, b, head, parent, X_PJ, joint_type, axis, var_index,
                           sph_link, sph_c, sph_r, sph_rs, pairs, q_lo, q_hi, T, C, PW,
-                          has_field, dist, origin, h, margin,
+                          has_field, dist, origin, h, margin, pts, cell_keys, cell_start,
                           box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
                           prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere, env_aabb, near)
         out[b] = ok
@@ -717,6 +751,19 @@ def _sphere_centers(Q, head, parent, X_PJ, joint_type, axis, var_index, sph_link
 
 
 @numba.njit(cache=True)
+def config_free_data(data):
+    """Validity of data[0][0] (the (1, 11) scratch configuration of a tuple
+    made by `CollisionChecker.base_pose_check_data`; numba-callable)."""
+    return _config_free(data[0], 0, data[6], data[7], data[8], data[9], data[10], data[11],
+                        data[12], data[13], data[14], data[15], data[16], data[17], data[18],
+                        data[1], data[2], data[3],
+                        data[19], data[20], data[21], data[22], data[23], data[24], data[25], data[26],
+                        data[27], data[28], data[29], data[30], data[31], data[32], data[33], data[34],
+                        data[35], data[36], data[37], data[38], data[39], data[40],
+                        data[4], data[5])
+
+
+@numba.njit(cache=True)
 def base_pose_free_exact(x, y, theta, data):
     """Whole-body validity at base pose (x, y, theta) with the torso/arm of
     `CollisionChecker.base_pose_check_data` (a tuple it made; numba-callable)."""
@@ -724,13 +771,47 @@ def base_pose_free_exact(x, y, theta, data):
     Q[0, 0] = x
     Q[0, 1] = y
     Q[0, 2] = (theta + math.pi) % (2.0 * math.pi) - math.pi
-    return _config_free(Q, 0, data[6], data[7], data[8], data[9], data[10], data[11],
-                        data[12], data[13], data[14], data[15], data[16], data[17], data[18],
-                        data[1], data[2], data[3],
-                        data[19], data[20], data[21], data[22], data[23],
-                        data[24], data[25], data[26], data[27], data[28], data[29], data[30], data[31],
-                        data[32], data[33], data[34], data[35], data[36], data[37],
-                        data[4], data[5])
+    return config_free_data(data)
+
+
+@numba.njit(cache=True)
+def _sphere_hits_points(cx, cy, cz, r, dist, origin, h, pts, cell_keys, cell_start):
+    """Whether some obstacle point lies within r of (cx, cy, cz): the points of
+    the occupied cells (dist == 0) that the sphere's bounding box overlaps."""
+    eps = 1e-9
+    lo = np.empty(3, np.int64)
+    hi = np.empty(3, np.int64)
+    c = (cx, cy, cz)
+    for a in range(3):
+        lo[a] = max(int(math.floor((c[a] - r - eps - origin[a]) / h + 0.5)), 0)
+        hi[a] = min(int(math.floor((c[a] + r + eps - origin[a]) / h + 0.5)), dist.shape[a] - 1)
+    ny, nz = dist.shape[1], dist.shape[2]
+    r2 = r * r
+    half = 0.5 * h
+    for i in range(lo[0], hi[0] + 1):
+        ex = max(abs(origin[0] + h * i - cx) - half, 0.0)
+        for j in range(lo[1], hi[1] + 1):
+            ey = max(abs(origin[1] + h * j - cy) - half, 0.0)
+            exy = ex * ex + ey * ey
+            if exy > r2:
+                continue
+            for k in range(lo[2], hi[2] + 1):
+                if dist[i, j, k] != 0.0:
+                    continue
+                ez = max(abs(origin[2] + h * k - cz) - half, 0.0)
+                if exy + ez * ez > r2:
+                    continue
+                key = (i * ny + j) * nz + k
+                m = np.searchsorted(cell_keys, key)
+                if m >= cell_keys.shape[0] or cell_keys[m] != key:
+                    continue
+                for n in range(cell_start[m], cell_start[m + 1]):
+                    dx = pts[n, 0] - cx
+                    dy = pts[n, 1] - cy
+                    dz = pts[n, 2] - cz
+                    if dx * dx + dy * dy + dz * dz <= r2:
+                        return True
+    return False
 
 
 @numba.njit(cache=True)
@@ -1057,9 +1138,10 @@ class CollisionChecker:
         self.env = env
         f = env.field
         if f is None:
-            self._field = (False, np.zeros((1, 1, 1), np.float32), np.zeros(3), 1.0, 0.0)
+            self._field = (False, np.zeros((1, 1, 1), np.float32), np.zeros(3), 1.0, 0.0,
+                           np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(1, np.int64))
         else:
-            self._field = (True, f.dist, f.origin, f.resolution, f.margin)
+            self._field = (True, f.dist, f.origin, f.resolution, f.margin, f.points, f.cell_keys, f.cell_start)
 
     def with_environment(self, env: CollisionEnvironment) -> "CollisionChecker":
         """A copy of this checker over another environment."""
@@ -1085,10 +1167,9 @@ class CollisionChecker:
     def _args(self):
         t = self.tree
         e = self.env
-        hf, dist, origin, h, margin = self._field
         return (self.head, t.parent, t.X_PJ, t.joint_type, t.axis, t.var_index,
                 self.sph_link, self.sph_c, self.sph_r, self.sph_rs, self.pairs, self.q_lo, self.q_hi,
-                hf, dist, origin, h, margin,
+                *self._field,
                 e.box_p, e.box_R, e.box_half, e.cyl_p, e.cyl_R, e.cyl_radius, e.cyl_half_length,
                 self.check_env, *self._body)
 

@@ -28,20 +28,14 @@ import time
 import numba
 import numpy as np
 
-from vamg_drake.planning.collision import CollisionChecker, _config_free
+from vamg_drake.planning.collision import CollisionChecker, config_free_data
 from vamg_drake.robot import layout
 
 
 @numba.njit(cache=True)
 def _state_free(data):
     """Validity of data[0][0] (the (1, 11) scratch configuration)."""
-    return _config_free(data[0], 0, data[6], data[7], data[8], data[9], data[10], data[11],
-                        data[12], data[13], data[14], data[15], data[16], data[17], data[18],
-                        data[1], data[2], data[3],
-                        data[19], data[20], data[21], data[22], data[23],
-                        data[24], data[25], data[26], data[27], data[28], data[29], data[30], data[31],
-                        data[32], data[33], data[34], data[35], data[36], data[37],
-                        data[4], data[5])
+    return config_free_data(data)
 
 
 @numba.njit(cache=True)
