@@ -141,3 +141,23 @@ def test_point_field_decides_the_shell_exactly():
     # grasps the closed loop needs), and there are collisions among them.
     assert np.sum(got & ~conservative) >= 10
     assert np.sum(~truth & self_ok) >= 10
+
+
+def test_grasp_target_points_may_touch_the_gripper_only():
+    """Points within the grasp target's ball block the forearm but not the fingers."""
+    checker = CollisionChecker.for_fetch(CollisionEnvironment(), CollisionCheckerConfig(motion_resolution=0.0))
+    q = np.array([0.0, 0.0, 0.0, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # arm straight out
+    assert checker.is_free(q[None])[0]
+    c = checker.sphere_centers(q[None])[0]
+    grip, forearm = np.flatnonzero(checker.is_gripper), checker.sph_link == checker.tree.link_names.index("forearm_roll_link")
+    assert grip.size and forearm.any()
+    p_grip = c[grip].mean(axis=0)
+    p_fore = c[np.flatnonzero(forearm)[0]]
+    ball = np.random.default_rng(0).normal(size=(200, 3)) * 0.01
+    for p, free_with_exemption in ((p_grip, True), (p_fore, False)):
+        env = CollisionEnvironment.from_points(p + ball, 0.03, grasp_target=p, grasp_target_radius=0.1)
+        assert bool(checker.with_environment(env).is_free(q[None])[0]) is free_with_exemption
+        # Without the exemption the points block both.
+        assert not checker.with_environment(CollisionEnvironment.from_points(p + ball, 0.03)).is_free(q[None])[0]
+    with pytest.raises(ValueError, match="grasp_target"):
+        CollisionEnvironment.from_points(ball, 0.03, grasp_target=[np.nan, 0, 0], grasp_target_radius=0.1)

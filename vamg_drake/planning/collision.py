@@ -147,6 +147,11 @@ class CollisionEnvironment:
         box_p: (K, 3) box centres; box_R (K, 3, 3); box_half (K, 3) half extents.
         cyl_p: (C, 3) cylinder centres; cyl_R (C, 3, 3) (axis = column 2);
             cyl_radius (C,), cyl_half_length (C,).
+        grasp_target: (3,) centre of the grasp target's ball: the field's
+            points within `grasp_target_radius` of it are the object to grasp,
+            which the gripper's spheres may touch and the rest of the robot
+            may not (0 radius: no such ball).
+        grasp_target_radius: [m].
     """
 
     field: DistanceField | None = None
@@ -157,6 +162,8 @@ class CollisionEnvironment:
     cyl_R: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3, 3)))
     cyl_radius: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
     cyl_half_length: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    grasp_target: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
+    grasp_target_radius: float = 0.0
 
     @property
     def is_empty(self) -> bool:
@@ -164,8 +171,17 @@ class CollisionEnvironment:
         return no_field and self.box_p.shape[0] == 0 and self.cyl_p.shape[0] == 0
 
     @staticmethod
-    def from_points(points: np.ndarray, resolution: float = 0.03) -> "CollisionEnvironment":
-        return CollisionEnvironment(field=DistanceField.from_points(points, resolution))
+    def from_points(points: np.ndarray, resolution: float = 0.03, grasp_target: np.ndarray | None = None,
+                    grasp_target_radius: float = 0.0) -> "CollisionEnvironment":
+        """The map's points as a distance field; points within
+        `grasp_target_radius` of `grasp_target` may touch the gripper only."""
+        if grasp_target is None or not grasp_target_radius > 0.0:
+            return CollisionEnvironment(field=DistanceField.from_points(points, resolution))
+        grasp_target = np.asarray(grasp_target, dtype=float).reshape(3)
+        if not np.all(np.isfinite(grasp_target)):
+            raise ValueError(f"grasp_target must be finite, got {grasp_target}")
+        return CollisionEnvironment(field=DistanceField.from_points(points, resolution),
+                                    grasp_target=grasp_target, grasp_target_radius=float(grasp_target_radius))
 
     @staticmethod
     def from_occupancy(occupied: np.ndarray, origin: np.ndarray, resolution: float) -> "CollisionEnvironment":
@@ -569,7 +585,7 @@ def _env_aabbs(box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, out):
 @numba.njit(cache=True)
 def _config_free(Q, b, head, parent, X_PJ, joint_type, axis, var_index,
                  sph_link, sph_c, sph_r, sph_rs, pairs, q_lo, q_hi, T, C, PW,
-                 has_field, dist, origin, h, margin, pts, cell_keys, cell_start,
+                 has_field, dist, origin, h, margin, pts, cell_keys, cell_start, tgt_c, tgt_r, sph_grip,
                  box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
                  prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere,
                  env_aabb, near):
@@ -610,9 +626,17 @@ def _config_free(Q, b, head, parent, X_PJ, joint_type, axis, var_index,
             if 0 <= ix < dist.shape[0] and 0 <= iy < dist.shape[1] and 0 <= iz < dist.shape[2]:
                 d = dist[ix, iy, iz]
                 if d - margin <= r:
-                    if pts.shape[0] == 0 or d + margin <= r:
+                    if pts.shape[0] == 0:
                         return False
-                    if _sphere_hits_points(cx, cy, cz, r, dist, origin, h, pts, cell_keys, cell_start):
+                    # A gripper sphere near the grasp target ignores its points.
+                    exempt = False
+                    if sph_grip[s] and tgt_r > 0.0:
+                        ex, ey, ez = cx - tgt_c[0], cy - tgt_c[1], cz - tgt_c[2]
+                        exempt = ex * ex + ey * ey + ez * ez <= (tgt_r + r) ** 2
+                    if not exempt and d + margin <= r:
+                        return False
+                    if _sphere_hits_points(cx, cy, cz, r, dist, origin, h, pts, cell_keys, cell_start,
+                                           exempt, tgt_c, tgt_r):
                         return False
     # Broad phase: primitives whose AABB overlaps the robot's.
     n_near = 0
@@ -707,7 +731,7 @@ def _config_free(Q, b, head, parent, X_PJ, joint_type, axis, var_index,
 @numba.njit(cache=True)
 def _batch_free(Q, head, parent, X_PJ, joint_type, axis, var_index,
                 sph_link, sph_c, sph_r, sph_rs, pairs, q_lo, q_hi,
-                has_field, dist, origin, h, margin, pts, cell_keys, cell_start,
+                has_field, dist, origin, h, margin, pts, cell_keys, cell_start, tgt_c, tgt_r, sph_grip,
                 box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
                 prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere,
                 order, stop_at_first, out):
@@ -726,7 +750,7 @@ def _batch_free(Q, head, parent, X_PJ, joint_type, axis, var_index,
         b = order[n]
         ok = _config_free(Q, b, head, parent, X_PJ, joint_type, axis, var_index,
                           sph_link, sph_c, sph_r, sph_rs, pairs, q_lo, q_hi, T, C, PW,
-                          has_field, dist, origin, h, margin, pts, cell_keys, cell_start,
+                          has_field, dist, origin, h, margin, pts, cell_keys, cell_start, tgt_c, tgt_r, sph_grip,
                           box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
                           prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere, env_aabb, near)
         out[b] = ok
@@ -758,8 +782,9 @@ def config_free_data(data):
                         data[12], data[13], data[14], data[15], data[16], data[17], data[18],
                         data[1], data[2], data[3],
                         data[19], data[20], data[21], data[22], data[23], data[24], data[25], data[26],
-                        data[27], data[28], data[29], data[30], data[31], data[32], data[33], data[34],
-                        data[35], data[36], data[37], data[38], data[39], data[40],
+                        data[27], data[28], data[29],
+                        data[30], data[31], data[32], data[33], data[34], data[35], data[36], data[37],
+                        data[38], data[39], data[40], data[41], data[42], data[43],
                         data[4], data[5])
 
 
@@ -775,9 +800,10 @@ def base_pose_free_exact(x, y, theta, data):
 
 
 @numba.njit(cache=True)
-def _sphere_hits_points(cx, cy, cz, r, dist, origin, h, pts, cell_keys, cell_start):
+def _sphere_hits_points(cx, cy, cz, r, dist, origin, h, pts, cell_keys, cell_start, exempt, tgt_c, tgt_r):
     """Whether some obstacle point lies within r of (cx, cy, cz): the points of
-    the occupied cells (dist == 0) that the sphere's bounding box overlaps."""
+    the occupied cells (dist == 0) that the sphere's bounding box overlaps,
+    except, when `exempt`, those within tgt_r of tgt_c."""
     eps = 1e-9
     lo = np.empty(3, np.int64)
     hi = np.empty(3, np.int64)
@@ -810,6 +836,12 @@ def _sphere_hits_points(cx, cy, cz, r, dist, origin, h, pts, cell_keys, cell_sta
                     dy = pts[n, 1] - cy
                     dz = pts[n, 2] - cz
                     if dx * dx + dy * dy + dz * dz <= r2:
+                        if exempt:
+                            tx = pts[n, 0] - tgt_c[0]
+                            ty = pts[n, 1] - tgt_c[1]
+                            tz = pts[n, 2] - tgt_c[2]
+                            if tx * tx + ty * ty + tz * tz <= tgt_r * tgt_r:
+                                continue
                         return True
     return False
 
@@ -1083,7 +1115,7 @@ class CollisionChecker:
 
     def __init__(self, tree, link_index, center_L, radius, self_collision_pairs,
                  env: CollisionEnvironment, config: CollisionCheckerConfig | None = None,
-                 body_primitives=(), prune_self_tests: bool = True):
+                 body_primitives=(), prune_self_tests: bool = True, is_gripper: np.ndarray | None = None):
         self.tree = tree
         config = config or CollisionCheckerConfig()
         self.config = config
@@ -1098,6 +1130,8 @@ class CollisionChecker:
         self.q_lo = np.ascontiguousarray(layout.Q_LOWER, dtype=float)
         self.q_hi = np.ascontiguousarray(layout.Q_UPPER, dtype=float)
         self.check_env = np.ones(self.sph_link.shape[0], dtype=np.bool_)
+        self.is_gripper = (np.zeros(self.sph_link.shape[0], dtype=np.bool_) if is_gripper is None
+                           else np.ascontiguousarray(is_gripper, dtype=np.bool_).reshape(self.sph_link.shape[0]))
         self._body = self._body_arrays(body_primitives)
         if prune_self_tests:
             keep_pairs, keep_body = _reachable_self_tests(tree, self.sph_link, self.sph_c, self.base_radius,
@@ -1119,7 +1153,7 @@ class CollisionChecker:
         tree = FetchKinematics.instance().tree
         return CollisionChecker(tree, spheres.link_index, spheres.center_L, spheres.radius,
                                 spheres.self_collision_pairs, env, config,
-                                body_primitives=spheres.body_primitives)
+                                body_primitives=spheres.body_primitives, is_gripper=spheres.is_gripper)
 
     @staticmethod
     def _body_arrays(prims):
@@ -1142,6 +1176,8 @@ class CollisionChecker:
                            np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(1, np.int64))
         else:
             self._field = (True, f.dist, f.origin, f.resolution, f.margin, f.points, f.cell_keys, f.cell_start)
+        self._field += (np.ascontiguousarray(env.grasp_target, dtype=float), float(env.grasp_target_radius),
+                        self.is_gripper)
 
     def with_environment(self, env: CollisionEnvironment) -> "CollisionChecker":
         """A copy of this checker over another environment."""

@@ -68,9 +68,9 @@ class PlannerSystemConfig:
     Attributes:
         period: how often the system looks for work (new goal, new map) [s].
         floor_z: map points below this height are the floor, not obstacles [m].
-        target_clearance: map points this close to the target are left out of
-            the planner's environment (the gripper is meant to reach them; the
-            policy has checked the goal itself against them) [m].
+        target_clearance: map points this close to the target are the object
+            to grasp: obstacles to the robot except its gripper, which is
+            meant to reach them [m].
         reach_tolerance: every joint of q within this of the goal reports REACHED.
         settle_time: after the trajectory's end, how long the robot may take to
             settle within `reach_tolerance` [s] ...
@@ -295,9 +295,9 @@ class PlannerSystem(LeafSystem):
             else:
                 p = np.asarray(snapshot.points, dtype=float)
                 keep = p[:, 2] >= self._config.floor_z
-                if p_WT is not None:
-                    keep &= np.linalg.norm(p - p_WT, axis=1) > self._config.target_clearance
-                env = CollisionEnvironment.from_points(p[keep], resolution=float(snapshot.voxel_size))
+                env = CollisionEnvironment.from_points(p[keep], resolution=float(snapshot.voxel_size),
+                                                       grasp_target=p_WT,
+                                                       grasp_target_radius=self._config.target_clearance)
             self._planner.set_environment(env)
             self._env_key = key
             if self._timings is not None:
