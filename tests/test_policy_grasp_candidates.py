@@ -166,6 +166,18 @@ def test_rank_and_select_with_capability_ik_and_collision() -> None:
     empty = select_grasp_goal(GraspCandidates.empty("no points"), np.zeros(11), np.eye(4), np.zeros(3), fake_arm_ik, is_free, None)
     assert not empty.success and "no points" in empty.failure_reason
 
+    # The capability map rejecting every candidate leaves the decision to IK,
+    # unless the fallback is off.
+    nowhere = lambda X_BG: np.zeros(len(X_BG), bool)  # noqa: E731
+    order, n_reach = rank_grasps(cands, np.eye(4), np.zeros(3), nowhere, GraspRankingConfig())
+    assert n_reach == 0 and sorted(order.tolist()) == [0, 1, 2, 3]
+    assert rank_grasps(cands, np.eye(4), np.zeros(3), nowhere, GraspRankingConfig(ik_when_unreachable=False))[0].size == 0
+    goal = select_grasp_goal(cands, np.zeros(11), np.eye(4), np.zeros(3), fake_arm_ik, is_free, nowhere)
+    assert goal.success and goal.num_reachable == 0
+    unreachable = select_grasp_goal(cands, np.zeros(11), np.eye(4), np.zeros(3),
+                                    lambda X, q: (np.zeros((len(X), 11)), np.zeros(len(X), bool)), is_free, nowhere)
+    assert not unreachable.success and "capability map calls none reachable" in unreachable.failure_reason
+
 
 @pytest.mark.parametrize("voxel", [0.01, 0.02])
 def test_map_resolution_clouds(voxel: float) -> None:

@@ -43,6 +43,9 @@ class GraspRankingConfig:
     #: touch the target, so ``is_free`` must let the gripper near the target).
     check_grasp_collision: bool = False
     approach_checks: int = 3
+    #: When the capability map calls no candidate reachable, try IK on the
+    #: ranked candidates anyway (the map's bins are coarser than IK).
+    ik_when_unreachable: bool = True
 
     def __post_init__(self) -> None:
         if self.n_diverse < 1:
@@ -142,9 +145,15 @@ def rank_grasps(
     if len(candidates) == 0:
         return np.zeros(0, dtype=int), 0
     keep = np.arange(len(candidates))
+    n_reachable = len(candidates)
     if reachable is not None:
         X_BG = np.linalg.inv(X_WB)[None] @ candidates.X_WG
-        keep = keep[np.asarray(reachable(X_BG), dtype=bool)]
+        reach = keep[np.asarray(reachable(X_BG), dtype=bool)]
+        n_reachable = int(reach.size)
+        # The capability map is a voxelized filter: where it rejects every
+        # candidate, IK (the exact test) still decides, if allowed.
+        if reach.size or not config.ik_when_unreachable:
+            keep = reach
     if keep.size == 0:
         return keep, 0
     diverse = keep[
@@ -153,7 +162,7 @@ def rank_grasps(
     s_hat = proximity_weighted_score(
         candidates.score[diverse], candidates.X_WG[diverse, :3, 3], p_WEE_current, config.proximity_weight
     )
-    return diverse[np.argsort(-s_hat, kind="stable")], int(keep.size)
+    return diverse[np.argsort(-s_hat, kind="stable")], n_reachable
 
 
 def select_grasp_goal(
@@ -187,7 +196,8 @@ def select_grasp_goal(
         q_grasp[ok_pre], ok_grasp[ok_pre] = solve_arm_ik(X_grasp[ok_pre], q_pre[ok_pre])
     valid = ok_pre & ok_grasp
     if not np.any(valid):
-        return fail("IK failed for every ranked grasp (base and torso fixed)", n_reachable, order.size)
+        why = "" if n_reachable else "; the capability map calls none reachable"
+        return fail(f"IK failed for every ranked grasp (base and torso fixed{why})", n_reachable, order.size)
     free = np.zeros(order.size, dtype=bool)
     free[valid] = np.asarray(is_free(q_pre[valid]), dtype=bool)
     if config.check_grasp_collision:

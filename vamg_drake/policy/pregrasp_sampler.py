@@ -206,6 +206,8 @@ class PregraspConfig:
     #: planner then has to unfold to; a reaching "ready" seed gives natural
     #: ones (in a furnished room: 13/20 pre-grasps planned vs 7/20 from stow).
     ik_seed_arm: list[float] = dc.field(default_factory=lambda: [0.0, -0.5, 0.0, 1.2, 0.0, 0.9, 0.0])
+    #: Valid, visible samples per base given to ``sample``'s ``accept`` test.
+    max_accept_tests: int = 3
 
     def __post_init__(self) -> None:
         if self.num_bases < 1 or self.samples_per_base < 1:
@@ -289,6 +291,7 @@ class PregraspSampler:
         max_samples: int | None = None,
         costmap: BaseCostmap | None = None,
         ee_poses: np.ndarray | None = None,
+        accept: Callable[[np.ndarray], bool] | None = None,
     ) -> PregraspResult:
         """Samples a pre-grasp configuration for target ``p_WT`` under map points ``p_WM``.
 
@@ -303,6 +306,9 @@ class PregraspSampler:
             ee_poses: (K, 4, 4) end-effector poses to draw p_ee from instead of
                 the sphere around the target (e.g. the pre-grasp poses of grasp
                 candidates, so that the grasp stage succeeds from the result).
+            accept: a last test of a valid, visible configuration (11,) (e.g.
+                "the grasp stage finds a grasp from here"); at most
+                `PregraspConfig.max_accept_tests` per base are tried.
         """
         t0 = time.perf_counter()
         cfg = self.config
@@ -311,6 +317,8 @@ class PregraspSampler:
         q_current = np.asarray(q_current, dtype=float).reshape(layout.NQ)
         budget = max_samples if max_samples is not None else cfg.num_bases * cfg.samples_per_base
         funnel = {"bases": 0, "samples": 0, "capability": 0, "ik": 0, "collision": 0, "visible": 0}
+        if accept is not None:
+            funnel["accepted"] = 0
         nan_q = np.full(layout.NQ, np.nan)
 
         def fail(reason: str) -> PregraspResult:
@@ -372,12 +380,16 @@ class PregraspSampler:
             idx, q = idx[free], q[free]
             visible, head = self.visibility.check(q, p_WT)
             funnel["visible"] += int(visible.sum())
-            if visible.any():
-                i = int(np.flatnonzero(visible)[0])
+            for i in np.flatnonzero(visible)[: cfg.max_accept_tests if accept is not None else 1]:
+                if accept is not None:
+                    if not accept(q[i]):
+                        continue
+                    funnel["accepted"] += 1
                 return PregraspResult(True, q[i], X_WG[idx[i]], head[i], funnel["samples"], funnel,
                                       time.perf_counter() - t0)
+        accepted = f", accepted {funnel['accepted']}" if accept is not None else ""
         return fail(
             f"no valid pre-grasp in {funnel['samples']} samples "
             f"(capability {funnel['capability']}, IK {funnel['ik']}, collision-free {funnel['collision']}, "
-            f"visible {funnel['visible']})"
+            f"visible {funnel['visible']}{accepted})"
         )

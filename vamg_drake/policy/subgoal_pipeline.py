@@ -27,7 +27,7 @@ from scipy.spatial import cKDTree
 from vamg_drake.planning.collision import CollisionChecker, CollisionCheckerConfig, CollisionEnvironment
 from vamg_drake.policy.arm_chain import base_poses
 from vamg_drake.policy.behaviour_tree import FailureCategory, PolicyInputs, SubgoalProposal, SubgoalSamplers
-from vamg_drake.policy.grasp_candidates import AntipodalGraspSampler, GraspCandidateSource
+from vamg_drake.policy.grasp_candidates import AntipodalGraspSampler, GraspCandidates, GraspCandidateSource
 from vamg_drake.policy.grasp_ranking import GraspRankingConfig, pregrasp_poses, select_grasp_goal
 from vamg_drake.policy.ik import FastIk
 from vamg_drake.policy.kinematic_maps import KinematicMaps
@@ -62,6 +62,9 @@ class SubgoalPipelineConfig:
     #: With a dense target cloud, the pre-grasp sampler's end-effector poses are
     #: the grasp candidates' pre-grasp poses (else the sphere around the target).
     pregrasp_from_grasps: bool = True
+    #: The grasp stage tries the grasp its last pre-grasp was accepted for first
+    #: when the base is within this distance of that pre-grasp's [m].
+    aimed_grasp_tolerance: float = 0.15
     #: Enclosure test: rays from the target, blocked by a point within
     #: ``enclosure_ray_radius`` of the ray between ``enclosure_min_distance``
     #: (beyond the target object's own surface) and ``enclosure_range``.
@@ -95,6 +98,7 @@ class SubgoalPipeline:
         self.spheres = SphereModel.load()
         self.rng = np.random.default_rng(seed)
         self._candidates: tuple | None = None  # (inputs, GraspCandidates) of the last proposal
+        self._aimed_grasp: tuple | None = None  # (q_pregrasp, X_WG) the last pre-grasp was accepted for
         self._cache_key: tuple | None = None
         self._cache: tuple | None = None
 
@@ -140,10 +144,9 @@ class SubgoalPipeline:
     def collision_fn(self, p_WM: np.ndarray, p_WT: np.ndarray, q: np.ndarray):
         """Batched ``is_free`` for configurations near the target under map points p_WM.
 
-        One distance field holds the map points near the target and the robot,
-        minus a ball of ``target_clearance`` around the target; the robot's
-        non-gripper spheres are also kept clear of the points inside that ball
-        (exact k-d tree distances).
+        One distance field holds the map points near the target and the robot;
+        those within ``target_clearance`` of the target may touch the gripper's
+        spheres only (`CollisionEnvironment.grasp_target`).
         """
         cfg = self.config
         key = (p_WM.shape[0], float(p_WM.sum()) if p_WM.size else 0.0, tuple(np.round(p_WT, 4)),
@@ -153,25 +156,11 @@ class SubgoalPipeline:
         centers = np.stack([p_WT[:2], np.asarray(q, float)[:2]])
         dxy = np.min(np.linalg.norm(p_WM[:, None, :2] - centers[None], axis=2), axis=1) if p_WM.size else np.zeros(0)
         local = p_WM[(dxy <= cfg.collision_crop) & (p_WM[:, 2] <= cfg.collision_max_height)] if p_WM.size else p_WM
-        near_target = np.linalg.norm(local - p_WT, axis=1) <= cfg.target_clearance
-        away, close = local[~near_target], local[near_target]
-        if away.shape[0] == 0:
-            away = np.array([[1e3, 1e3, 1e3]])  # nothing observed: one far point
-        checker = CollisionChecker.for_fetch(CollisionEnvironment.from_points(away, cfg.collision_resolution),
-                                             CollisionCheckerConfig())
-        body = ~self.spheres.is_gripper
-        body_radius = self.spheres.radius[body] + checker.padding
-        tree = cKDTree(close) if close.shape[0] else None
-
-        def is_free(Q: np.ndarray) -> np.ndarray:
-            Q = np.atleast_2d(Q)
-            free = checker.is_free(Q)
-            if tree is not None and free.any():
-                c = self.spheres.world_spheres(Q[free])[:, body]  # (K, S, 3)
-                d, _ = tree.query(c.reshape(-1, 3))
-                free[free] = np.all(d.reshape(c.shape[:2]) > body_radius[None], axis=1)
-            return free
-
+        if local.shape[0] == 0:
+            local = np.array([[1e3, 1e3, 1e3]])  # nothing observed: one far point
+        env = CollisionEnvironment.from_points(local, cfg.collision_resolution, grasp_target=p_WT,
+                                               grasp_target_radius=cfg.target_clearance)
+        is_free = CollisionChecker.for_fetch(env, CollisionCheckerConfig()).is_free
         self._cache_key, self._cache = key, is_free
         return is_free
 
@@ -192,17 +181,30 @@ class SubgoalPipeline:
         candidates = self._grasp_candidates(inputs, p_WM, p_WT)
         if len(candidates) == 0:
             return SubgoalProposal.failure(f"no grasp candidates: {candidates.failure_reason}", FailureCategory.PERCEPTION)
-        X_WB = base_poses(q)[0]
-        p_WE = FetchKinematics.instance().gripper_pose(q)[:3, 3]
-        goal = select_grasp_goal(
-            candidates, q, X_WB, p_WE, self.ik.solve_arm, self.collision_fn(p_WM, p_WT, q),
-            self.maps.capability.is_reachable, self.config.ranking,
-        )
+        # The grasp the last pre-grasp was accepted for comes first (IK and
+        # collision re-checked; the capability map already had its say).
+        goal, aimed = None, self._aimed_grasp
+        if aimed is not None and np.linalg.norm(aimed[0][:2] - q[:2]) <= self.config.aimed_grasp_tolerance:
+            goal = self._grasp_goal(GraspCandidates(aimed[1][None], np.ones(1), np.zeros(1)), q, p_WM, p_WT,
+                                    capability=False)
+        if goal is None or not goal.success:
+            goal = self._grasp_goal(candidates, q, p_WM, p_WT)
         if not goal.success:
             category = FailureCategory.SUBGOAL if "collision" in goal.failure_reason else FailureCategory.REACHABILITY
             return SubgoalProposal.failure(goal.failure_reason, category)
         _, head = self.visibility.check(goal.q_pregrasp[None], p_WT)
         return SubgoalProposal(True, goal.q_pregrasp, goal.q_grasp, head[0])
+
+    def _grasp_goal(self, candidates: GraspCandidates, q: np.ndarray, p_WM: np.ndarray, p_WT: np.ndarray,
+                    capability: bool = True, is_free=None):
+        """The paper's grasp goal sampling from configuration q (base and torso
+        fixed); `is_free` defaults to `collision_fn` around q."""
+        X_WB = base_poses(q)[0]
+        p_WE = FetchKinematics.instance().gripper_pose(q)[:3, 3]
+        return select_grasp_goal(
+            candidates, q, X_WB, p_WE, self.ik.solve_arm, is_free or self.collision_fn(p_WM, p_WT, q),
+            self.maps.capability.is_reachable if capability else None, self.config.ranking,
+        )
 
     def _grasp_candidates(self, inputs: PolicyInputs, p_WM: np.ndarray, p_WT: np.ndarray):
         """The grasp candidates for these inputs, proposed once per tick: the
@@ -240,15 +242,25 @@ class SubgoalPipeline:
             return SubgoalProposal.failure(problem, FailureCategory.PERCEPTION)
         costmap = BaseCostmap.from_points(p_WM, self.config.pregrasp.costmap,
                                           include_xy=np.stack([p_WT[:2], q[:2]]), robot_xy=q[:2])
-        ee_poses = None
-        if self.config.pregrasp_from_grasps and inputs.p_WS is not None and len(inputs.p_WS):
-            # Once the target is seen densely, aim p_ee at its grasp candidates'
-            # pre-grasp poses: the grasp stage then has a grasp from the result.
+        ee_poses, accept = None, None
+        is_free = self.collision_fn(p_WM, p_WT, q)  # its crop covers the target's surroundings
+        if self.config.pregrasp_from_grasps:
+            # With grasp candidates, aim p_ee at their pre-grasp poses (once the
+            # target is seen densely) and accept a pre-grasp only if the grasp
+            # stage finds a grasp from it; that grasp is tried first there.
             candidates = self._grasp_candidates(inputs, p_WM, p_WT)
             if len(candidates):
-                ee_poses = pregrasp_poses(candidates.X_WG, self.config.ranking.pregrasp_offset)
-        result = self.pregrasp.sample(p_WM, p_WT, q, self.collision_fn(p_WM, p_WT, q), self.rng, costmap=costmap,
-                                      ee_poses=ee_poses)
+                if inputs.p_WS is not None and len(inputs.p_WS):
+                    ee_poses = pregrasp_poses(candidates.X_WG, self.config.ranking.pregrasp_offset)
+
+                def accept(q_pre: np.ndarray) -> bool:
+                    goal = self._grasp_goal(candidates, q_pre, p_WM, p_WT, is_free=is_free)
+                    if goal.success:
+                        self._aimed_grasp = (q_pre, goal.X_WG)
+                    return goal.success
+
+        result = self.pregrasp.sample(p_WM, p_WT, q, is_free, self.rng, costmap=costmap,
+                                      ee_poses=ee_poses, accept=accept)
         if not result.success:
             category = FailureCategory.REACHABILITY if result.funnel["ik"] == 0 else FailureCategory.SUBGOAL
             return SubgoalProposal.failure(result.failure_reason, category)
