@@ -36,3 +36,21 @@ def test_sampled_path_is_continuous_and_ends_at_goal():
     steps = np.hypot(*np.diff(poses[:, :2], axis=0).T)
     assert steps.max() <= 0.02 + 1e-9
     assert np.sum(steps) == pytest.approx(total, rel=1e-3)
+
+
+def test_reverse_weight_trades_length_for_forward_driving():
+    """A goal behind the robot: the plain shortest path backs up all the way;
+    with backward segments weighted 3x the chosen path drives less backwards
+    (and is longer), and still ends at the goal."""
+    start, goal, R = np.array([0.0, 0.0, 0.0]), np.array([-1.5, 0.8, 0.0]), 0.4
+
+    def backward(lengths):
+        return -R * lengths[lengths < 0].sum()
+
+    t1, l1, total1 = rs.shortest_path(start, goal, R)
+    t3, l3, total3 = rs.shortest_path(start, goal, R, 3.0)
+    assert backward(l1) == pytest.approx(total1)
+    assert backward(l3) < 0.6 * backward(l1) and total3 > total1
+    np.testing.assert_allclose(rs.end_pose(start, t3, l3, R), goal, atol=1e-9)
+    # Weight 1 is the plain shortest path.
+    assert rs.shortest_path(start, goal, R, 1.0)[2] == pytest.approx(total1)

@@ -256,8 +256,12 @@ def _word(w, x, y, phi, types, lengths):
 
 
 @numba.njit(cache=True)
-def shortest_path_normalized(x: float, y: float, phi: float):
+def shortest_path_normalized(x: float, y: float, phi: float, reverse_weight: float = 1.0):
     """The shortest Reeds-Shepp path from the origin to (x, y, phi), unit radius.
+
+    With `reverse_weight` > 1 the path of least weighted length (backward
+    segments count `reverse_weight` times) is chosen instead: a robot whose
+    camera looks forward should not back into space it has not seen.
 
     Returns:
         (types (5,) int64, lengths (5,) float64, total length). Unused slots
@@ -266,6 +270,7 @@ def shortest_path_normalized(x: float, y: float, phi: float):
     best_types = np.full(5, _NONE, dtype=np.int64)
     best_lengths = np.zeros(5)
     best = np.inf
+    best_cost = np.inf
     types = np.empty(5, dtype=np.int64)
     lengths = np.empty(5)
     for w in range(_NUM_WORDS):
@@ -277,9 +282,13 @@ def shortest_path_normalized(x: float, y: float, phi: float):
             if not _word(w, sx, sy, sphi, types, lengths):
                 continue
             total = 0.0
+            cost = 0.0
             for i in range(5):
                 total += abs(lengths[i])
-            if total < best - 1e-12:
+                backward = (lengths[i] < 0.0) != (sym == 1 or sym == 3)
+                cost += abs(lengths[i]) * (reverse_weight if backward else 1.0)
+            if cost < best_cost - 1e-12:
+                best_cost = cost
                 best = total
                 for i in range(5):
                     tp = types[i]
@@ -294,8 +303,9 @@ def shortest_path_normalized(x: float, y: float, phi: float):
 
 
 @numba.njit(cache=True)
-def shortest_path(start: np.ndarray, goal: np.ndarray, radius: float):
-    """Shortest path between poses (x, y, theta) for turning radius `radius`.
+def shortest_path(start: np.ndarray, goal: np.ndarray, radius: float, reverse_weight: float = 1.0):
+    """Shortest path between poses (x, y, theta) for turning radius `radius`
+    (least weighted length with `reverse_weight`, see `shortest_path_normalized`).
 
     Returns:
         (types (5,), lengths (5,) in radius units, total length in metres).
@@ -307,7 +317,7 @@ def shortest_path(start: np.ndarray, goal: np.ndarray, radius: float):
     x = (c * dx + s * dy) / radius
     y = (-s * dx + c * dy) / radius
     phi = goal[2] - start[2]
-    types, lengths, total = shortest_path_normalized(x, y, phi)
+    types, lengths, total = shortest_path_normalized(x, y, phi, reverse_weight)
     return types, lengths, total * radius
 
 
