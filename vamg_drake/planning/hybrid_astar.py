@@ -111,6 +111,10 @@ class HybridAStarConfig:
         check_step: sampling step [m] of collision checks along curves.
         heuristic_weight: weight of the heuristic (> 1: greedier, fewer
             expansions, paths up to that factor longer before shortcutting).
+        heuristic_cell: cell size [m] of the heuristic's distance grid (a
+            whole multiple of the costmap's cells, the nearest).
+        analytic_radius: within this distance [m] of the goal a Reeds-Shepp
+            connection is tried at every expansion.
         exact_slack: with an exact pose check, a pose that the 2D discs
             block by less than this [m] is decided by the exact check.
     """
@@ -124,7 +128,9 @@ class HybridAStarConfig:
     max_expansions: int = 20000
     check_step: float = 0.04
     exact_slack: float = 0.06
-    heuristic_weight: float = 3.0
+    heuristic_weight: float = 5.0
+    heuristic_cell: float = 0.1
+    analytic_radius: float = 1.0
 
 
 @numba.njit(cache=True)
@@ -204,6 +210,20 @@ def _dijkstra_2d(free, gi, gj, h):
 
 
 @numba.njit(cache=True)
+def _coarse_free(free, factor):
+    """A grid `factor` times coarser: a coarse cell is free when any of its cells is."""
+    nx, ny = free.shape
+    cx = (nx + factor - 1) // factor
+    cy = (ny + factor - 1) // factor
+    out = np.zeros((cx, cy), dtype=np.bool_)
+    for i in range(nx):
+        for j in range(ny):
+            if free[i, j]:
+                out[i // factor, j // factor] = True
+    return out
+
+
+@numba.njit(cache=True)
 def _wrap(a):
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
@@ -231,8 +251,8 @@ def _prim_poses(x, y, th, kappa, length, dth, n, out):
 @numba.njit(cache=True)
 def _search(start, goal, layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact, exact, exact_zone,
             slack,
-            h2d, prims, prim_n, radius, check_step, theta_bins, xy_res, analytic_every, max_exp, v, heur_weight,
-            near_goal):
+            h2d, h2d_factor, h2d_slack, prims, prim_n, radius, check_step, theta_bins, xy_res, analytic_every, max_exp,
+            v, heur_weight, near_goal):
     """The Hybrid A* loop. Returns (status, node, poses, parents, prim ids, rs types, rs lengths, expansions).
 
     status: 1 found (node connects to the goal by the RS path), 0 exhausted, -1 limit.
@@ -292,15 +312,16 @@ def _search(start, goal, layers, origin, h, margin, discs, band, exempt, exempt_
             if not _poses_free(buf[:m], layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact,
                                exact, exact_zone, slack):
                 continue
-            # heuristic: obstacle-aware 2D distance (minus its grid slack) or Euclid
+            # heuristic: obstacle-aware 2D distance on the coarse grid (minus
+            # its grid slack) or Euclid
             i = int(math.floor((qx - origin[0]) / h + 0.5))
             j = int(math.floor((qy - origin[1]) / h + 0.5))
             e = math.hypot(qx - goal[0], qy - goal[1])
             if 0 <= i < nx and 0 <= j < ny:
-                d2 = h2d[i, j]
+                d2 = h2d[i // h2d_factor, j // h2d_factor]
                 if d2 == np.inf:
                     continue
-                e = max(e, d2 - 2.0 * diag * h)
+                e = max(e, d2 - h2d_slack)
             ng = g_of[idx] + prims[p, 3]
             if n_nodes == cap:
                 cap *= 2
@@ -460,17 +481,17 @@ class HybridAStar:
             gy = cm.origin[1] + cm.resolution * np.arange(ny)
             for ex, ey in self._exempt:
                 free |= ((gx[:, None] - ex) ** 2 + (gy[None, :] - ey) ** 2) < self._exempt_r ** 2
-        h2d = self._heuristic_grid(free, goal)
+        h2d, factor, h2d_slack = self._heuristic_grid(free, goal)
         si, sj = cm.cell(start)
-        if 0 <= si < nx and 0 <= sj < ny and not np.isfinite(h2d[si, sj]):
+        if 0 <= si < nx and 0 <= sj < ny and not np.isfinite(h2d[si // factor, sj // factor]):
             return None, "no base path (goal unreachable in the 2D map)"
         prims, counts = self._primitives
         xy_res = max(cm.resolution, 0.5 * c.step)
         status, node, poses, parents, prim_of, types, lengths, expansions = _search(
             start, goal, self._layers, cm.origin, cm.resolution, cm.margin, self._discs, self._band,
             self._exempt, self._exempt_r, self._exempt_exact, self.exact, self._exact_zone, self._slack,
-            h2d, prims, counts, c.turning_radius, c.check_step, c.theta_bins, xy_res, c.analytic_every,
-            c.max_expansions, self.v, c.heuristic_weight, 4.0 * self.radius)
+            h2d, factor, h2d_slack, prims, counts, c.turning_radius, c.check_step, c.theta_bins, xy_res, c.analytic_every,
+            c.max_expansions, self.v, c.heuristic_weight, c.analytic_radius)
         if status == -1:
             return None, "no base path (search limit)"
         if status == 0:
@@ -502,19 +523,21 @@ class HybridAStar:
             self._free = free
         return self._free
 
-    def _heuristic_grid(self, free: np.ndarray, goal: np.ndarray) -> np.ndarray:
-        """Obstacle-aware distances to the goal on a 2x coarser grid (a coarse
-        cell is free when any of its cells is: an underestimate), upsampled."""
+    def _heuristic_grid(self, free: np.ndarray, goal: np.ndarray) -> tuple[np.ndarray, int, float]:
+        """Obstacle-aware distances to the goal on a grid `factor` times
+        coarser than the costmap (cells of about `heuristic_cell` m; a coarse
+        cell is free when any of its cells is: an underestimate).
+
+        Returns (distances (cx, cy) [m], factor, slack [m]): the distance of
+        a fine cell (i, j) is at least dist[i // factor, j // factor] - slack
+        (cell centres sit up to `slack` from their coarse cell's centre)."""
         cm = self.costmap
-        nx, ny = free.shape
-        px, py = nx % 2, ny % 2
-        f = np.pad(free, ((0, px), (0, py)))
-        coarse = f.reshape(f.shape[0] // 2, 2, f.shape[1] // 2, 2).any(axis=(1, 3))
+        factor = max(int(round(self.config.heuristic_cell / cm.resolution)), 1)
+        coarse = _coarse_free(free, factor)
         gi, gj = cm.cell(goal)
-        d = _dijkstra_2d(coarse, gi // 2, gj // 2, 2.0 * cm.resolution)
-        # Coarse cell centres sit up to one fine diagonal from fine ones.
-        d = np.repeat(np.repeat(d, 2, axis=0), 2, axis=1)[:nx, :ny]
-        return np.maximum(d - 2.0 * math.sqrt(2.0) * cm.resolution, 0.0)
+        hc = factor * cm.resolution
+        d = _dijkstra_2d(coarse, gi // factor, gj // factor, hc)
+        return d, factor, 2.0 * math.sqrt(2.0) * 0.5 * (factor - 1) * cm.resolution + math.sqrt(2.0) * hc
 
     def shortcut(self, poses: np.ndarray, rng: np.random.Generator, iterations: int = 20) -> np.ndarray:
         """Randomized shortcutting of a base path with Reeds-Shepp connections."""

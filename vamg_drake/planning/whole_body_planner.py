@@ -54,8 +54,9 @@ import time
 import numpy as np
 
 from vamg_drake.planning import smoothing
+from vamg_drake.planning.base_costmap import base_costmap
 from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment, densify
-from vamg_drake.planning.hybrid_astar import Costmap2D, Footprint2D, HybridAStar, HybridAStarConfig
+from vamg_drake.planning.hybrid_astar import Footprint2D, HybridAStar, HybridAStarConfig
 from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.planning.whole_body_rrt import KernelRRTConfig, WholeBodySearchSpace
 from vamg_drake.robot import layout
@@ -156,17 +157,6 @@ class PlanResult:
     message: str = ""
 
 
-def _pad_to(dist, origin, origin0, h, shape):
-    """dist re-gridded onto the grid of origin0 and shape (cells outside: far)."""
-    off = np.rint((np.asarray(origin) - origin0) / h).astype(int)
-    out = np.full(shape, np.float32(1e6))
-    i0, j0 = off
-    if i0 < 0 or j0 < 0 or i0 + dist.shape[0] > shape[0] or j0 + dist.shape[1] > shape[1]:
-        raise ValueError("costmap layers do not share a grid")
-    out[i0:i0 + dist.shape[0], j0:j0 + dist.shape[1]] = dist
-    return out
-
-
 @dataclasses.dataclass(frozen=True)
 class _BasePlan:
     poses: np.ndarray
@@ -260,30 +250,16 @@ class WholeBodyPlanner:
             if any(np.any(p[:2] < lo) or np.any(p[:2] > hi) for p in poses):
                 self._hybrid = None
         if self._hybrid is None:
-            env = self.checker.env
             cover = None
             if poses:
                 xy = np.array([p[:2] for p in poses])
                 cover = (xy.min(axis=0) - margin_xy, xy.max(axis=0) + margin_xy)
-            layers = [env.footprint_field_2d(z0, z1, self.config.costmap_resolution, cover) for z0, z1 in self.bands]
-            _, origin, res, margin = layers[0]
-            if len(layers) > 1:
-                # One grid holding every band: the lowest origin and the largest
-                # extent per axis (bands may be cropped differently).
-                # Offsets are rounded to whole cells, so the extent is taken
-                # after rounding (bands need not share a grid phase).
-                origin = np.min([l[1] for l in layers], axis=0)
-                offsets = [np.rint((np.asarray(l[1]) - origin) / res).astype(int) for l in layers]
-                shape = tuple(int(v) for v in np.max([o + np.asarray(l[0].shape[:2]) for o, l in zip(offsets, layers)],
-                                                     axis=0))
-                dist = np.stack([_pad_to(l[0], l[1], origin, res, shape) for l in layers])
-            else:
-                dist = layers[0][0]
-            cm = Costmap2D(dist, origin, res, max(l[3] for l in layers))
-            self._hybrid = HybridAStar(cm, self.footprint, HybridAStarConfig(
-                turning_radius=self.config.turning_radius,
-                max_expansions=self.config.hybrid_astar_max_expansions),
-                checker=self.checker, travel_arm=self.travel)
+            search = HybridAStarConfig(turning_radius=self.config.turning_radius,
+                                       max_expansions=self.config.hybrid_astar_max_expansions)
+            # Clearances beyond the largest disc + its slack are never compared.
+            cap = self.footprint_radius + search.exact_slack + 2.0 * self.config.costmap_resolution + 0.1
+            cm = base_costmap(self.checker.env, self.bands, self.config.costmap_resolution, cap, cover)
+            self._hybrid = HybridAStar(cm, self.footprint, search, checker=self.checker, travel_arm=self.travel)
         return self._hybrid
 
     # -- validation ------------------------------------------------------------
