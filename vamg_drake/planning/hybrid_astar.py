@@ -104,7 +104,15 @@ class HybridAStarConfig:
         turning_radius: minimum turning radius of arcs and Reeds-Shepp curves [m].
         step: arc length of one motion primitive [m].
         theta_bins: heading bins.
-        reverse_penalty: cost multiplier when driving backwards.
+        reverse_penalty: cost multiplier when driving backwards, also the
+            weight of backward segments when choosing Reeds-Shepp curves
+            (`reeds_shepp.shortest_path`) and judging shortcuts: the head
+            camera looks ahead (pan +-90 deg), so backing up drives into space
+            the map has not seen; at 8, turning half a circle in place and
+            driving forward wins over backing up more than ~0.6 m.
+        max_analytic_reverse: a Reeds-Shepp curve to the goal (the one tried
+            before the search, and the search's analytic expansions) is taken
+            only if it drives at most this far backwards [m].
         allow_in_place_rotation: add in-place turns of one heading bin.
         analytic_every: try a Reeds-Shepp connection every n expansions.
         max_expansions: search limit.
@@ -122,7 +130,8 @@ class HybridAStarConfig:
     turning_radius: float = 0.4
     step: float = 0.3
     theta_bins: int = 36
-    reverse_penalty: float = 1.5
+    reverse_penalty: float = 8.0
+    max_analytic_reverse: float = 0.4
     allow_in_place_rotation: bool = True
     analytic_every: int = 8
     max_expansions: int = 20000
@@ -252,7 +261,7 @@ def _prim_poses(x, y, th, kappa, length, dth, n, out):
 def _search(start, goal, layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact, exact, exact_zone,
             slack,
             h2d, h2d_factor, h2d_slack, prims, prim_n, radius, check_step, theta_bins, xy_res, analytic_every, max_exp,
-            v, heur_weight, near_goal):
+            v, heur_weight, near_goal, reverse_weight, max_reverse):
     """The Hybrid A* loop. Returns (status, node, poses, parents, prim ids, rs types, rs lengths, expansions).
 
     status: 1 found (node connects to the goal by the RS path), 0 exhausted, -1 limit.
@@ -297,9 +306,12 @@ def _search(start, goal, layers, origin, h, margin, discs, band, exempt, exempt_
             return -1, -1, poses[:n_nodes], parents[:n_nodes], prim_of[:n_nodes], best_types, best_lengths, expansions
         dgoal = math.hypot(x - goal[0], y - goal[1])
         if expansions % analytic_every == 1 or dgoal < near_goal:
-            types, lengths, total = rs.shortest_path(poses[idx], goal, radius)
+            types, lengths, total = rs.shortest_path(poses[idx], goal, radius, reverse_weight)
+            backward = 0.0
+            for k in range(lengths.shape[0]):
+                backward -= radius * min(lengths[k], 0.0)
             path = rs.sample_path(poses[idx], types, lengths, radius, check_step)
-            if _poses_free(path, layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact, exact, exact_zone, slack):
+            if backward <= max_reverse and _poses_free(path, layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact, exact, exact_zone, slack):
                 return 1, idx, poses[:n_nodes], parents[:n_nodes], prim_of[:n_nodes], types, lengths, expansions
         for p in range(prims.shape[0]):
             m = _prim_poses(x, y, th, prims[p, 0], prims[p, 1], prims[p, 2], prim_n[p], buf)
@@ -401,12 +413,25 @@ class HybridAStar:
                                 cm.margin, self._discs, self._band, self._exempt, self._exempt_r,
                                 self._exempt_exact, self.exact, self._exact_zone, self._slack))
 
-    def reeds_shepp(self, a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-        """Sampled RS path a->b (M, 3) if its poses are free, else None."""
+    def reeds_shepp(self, a: np.ndarray, b: np.ndarray, max_reverse: float = np.inf) -> np.ndarray | None:
+        """Sampled RS path a->b (M, 3) (backward segments weighted by
+        `reverse_penalty`) if it backs up at most `max_reverse` [m] and its
+        poses are free, else None."""
         R = self.config.turning_radius
-        types, lengths, _ = rs.shortest_path(a, b, R)
+        types, lengths, _ = rs.shortest_path(a, b, R, self.config.reverse_penalty)
+        if -R * float(lengths[lengths < 0].sum()) > max_reverse:
+            return None
         poses = rs.sample_path(a, types, lengths, R, self.config.check_step)
         return poses if self.poses_free(poses) else None
+
+    def path_cost(self, poses: np.ndarray) -> float:
+        """Length of a sampled base path [m], backward steps counted
+        `reverse_penalty` times, plus 0.3 m per radian turned."""
+        d = np.diff(poses[:, :2], axis=0)
+        step = np.hypot(d[:, 0], d[:, 1])
+        backward = d[:, 0] * np.cos(poses[:-1, 2]) + d[:, 1] * np.sin(poses[:-1, 2]) < 0.0
+        weight = np.where(backward, self.config.reverse_penalty, 1.0)
+        return float(np.sum(step * weight)) + 0.3 * float(np.sum(np.abs(np.diff(poses[:, 2]))))
 
     def _make_primitives(self):
         """Rows (kappa, signed length, in-place dtheta, cost [s]) and check counts."""
@@ -470,7 +495,7 @@ class HybridAStar:
         while len(zone_data) < 2:
             zone_data.append(self.exact)
         self._exact_zone = tuple(zone_data)
-        direct = self.reeds_shepp(start, goal)
+        direct = self.reeds_shepp(start, goal, c.max_analytic_reverse)
         if direct is not None:
             return BasePath(direct, 0), ""
         free = self._free_mask()
@@ -491,7 +516,8 @@ class HybridAStar:
             start, goal, self._layers, cm.origin, cm.resolution, cm.margin, self._discs, self._band,
             self._exempt, self._exempt_r, self._exempt_exact, self.exact, self._exact_zone, self._slack,
             h2d, factor, h2d_slack, prims, counts, c.turning_radius, c.check_step, c.theta_bins, xy_res, c.analytic_every,
-            c.max_expansions, self.v, c.heuristic_weight, c.analytic_radius)
+            c.max_expansions, self.v, c.heuristic_weight, c.analytic_radius, c.reverse_penalty,
+            c.max_analytic_reverse)
         if status == -1:
             return None, "no base path (search limit)"
         if status == 0:
@@ -550,12 +576,10 @@ class HybridAStar:
             if j - i < 3:
                 continue
             a, b = poses[i], poses[j]
-            types, lengths, total = rs.shortest_path(a, b, R)
-            old = float(np.sum(np.hypot(*np.diff(poses[i:j + 1, :2], axis=0).T))) + 0.3 * float(
-                np.sum(np.abs(np.diff(poses[i:j + 1, 2]))))
+            types, lengths, total = rs.shortest_path(a, b, R, self.config.reverse_penalty)
+            old = self.path_cost(poses[i:j + 1])
             seg = rs.sample_path(a, types, lengths, R, self.config.check_step)
-            new = float(np.sum(np.hypot(*np.diff(seg[:, :2], axis=0).T))) + 0.3 * float(
-                np.sum(np.abs(np.diff(seg[:, 2]))))
+            new = self.path_cost(seg)
             if new >= old - 1e-6 or not self.poses_free(seg):
                 continue
             # keep theta continuous: RS starts at a's unwrapped theta; shift the rest
