@@ -80,6 +80,8 @@ def test_pregrasp_samples_are_collision_free_ik_valid_and_see_the_target(pipelin
         q = r.q
         assert layout.within_limits(q)
         assert is_free(q[None])[0]
+        # The torso leaves room to lift the object.
+        assert q[layout.TORSO] <= layout.Q_UPPER[layout.TORSO] - pipeline.config.pregrasp.lift_headroom + 1e-9
         X = kin.gripper_pose(q)
         np.testing.assert_allclose(X[:3, 3], r.X_WG[:3, 3], atol=pipeline.ik.config.position_tolerance)
         assert np.linalg.norm(X[:3, 3] - target) == pytest.approx(0.10, abs=0.005)

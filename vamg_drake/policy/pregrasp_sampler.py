@@ -208,6 +208,10 @@ class PregraspConfig:
     ik_seed_arm: list[float] = dc.field(default_factory=lambda: [0.0, -0.5, 0.0, 1.2, 0.0, 0.9, 0.0])
     #: Valid, visible samples per base given to ``sample``'s ``accept`` test.
     max_accept_tests: int = 3
+    #: Torso travel left free above the pre-grasp's torso [m]: the grasp keeps
+    #: the torso and lifts the object with it (`BehaviourConfig.lift_height`);
+    #: a torso near its top lifted the object only 8 cm.
+    lift_headroom: float = 0.12
 
     def __post_init__(self) -> None:
         if self.num_bases < 1 or self.samples_per_base < 1:
@@ -364,7 +368,9 @@ class PregraspSampler:
             else:
                 torso = np.full(n, np.nan)
             missing = ~np.isfinite(torso)
-            torso[missing] = rng.uniform(layout.Q_LOWER[layout.TORSO], layout.Q_UPPER[layout.TORSO], missing.sum())
+            torso_top = max(layout.Q_UPPER[layout.TORSO] - cfg.lift_headroom, layout.Q_LOWER[layout.TORSO])
+            torso[missing] = rng.uniform(layout.Q_LOWER[layout.TORSO], torso_top, missing.sum())
+            torso = np.minimum(torso, torso_top)
             seeds = np.tile(q_base, (n, 1))
             seeds[:, layout.TORSO] = torso
             idx = np.flatnonzero(keep)
