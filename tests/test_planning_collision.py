@@ -5,6 +5,7 @@ import pytest
 
 from vamg_drake.planning.collision import (
     CollisionChecker, CollisionCheckerConfig, CollisionEnvironment, DistanceField, bisection_order, densify,
+    support_height,
 )
 from vamg_drake.planning.problems import furnished_room
 from vamg_drake.robot import layout
@@ -161,3 +162,25 @@ def test_grasp_target_points_may_touch_the_gripper_only():
         assert not checker.with_environment(CollisionEnvironment.from_points(p + ball, 0.03)).is_free(q[None])[0]
     with pytest.raises(ValueError, match="grasp_target"):
         CollisionEnvironment.from_points(ball, 0.03, grasp_target=[np.nan, 0, 0], grasp_target_radius=0.1)
+
+
+def test_the_support_under_the_grasp_target_blocks_the_gripper():
+    """Table-top points inside the target's ball are the support, not the
+    object: the gripper may touch the object's points only."""
+    from vamg_drake.robot.kinematics import FetchKinematics
+
+    rng = np.random.default_rng(1)
+    checker = CollisionChecker.for_fetch(CollisionEnvironment(), CollisionCheckerConfig(motion_resolution=0.0))
+    q = np.array([0.0, 0.0, 0.0, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # arm straight out
+    p_WT = FetchKinematics.instance().gripper_pose(q)[:3, 3]  # the object between the fingers
+    obj = p_WT + rng.normal(size=(200, 3)) * 0.005
+    c = checker.sphere_centers(q[None])[0]
+    z_table = np.min(c[checker.is_gripper, 2] - checker.sph_r[checker.is_gripper]) + 0.01  # cuts the fingers
+    xs, ys = np.meshgrid(np.arange(-0.1, 0.1, 0.015), np.arange(-0.1, 0.1, 0.015))
+    table = np.column_stack([p_WT[0] + xs.ravel(), p_WT[1] + ys.ravel(), np.full(xs.size, z_table)])
+    assert support_height(np.concatenate([table, obj]), p_WT, 0.1) == pytest.approx(z_table, abs=0.021)
+    assert support_height(obj, p_WT, 0.1) == -np.inf  # no plane under the object alone
+    assert support_height(np.zeros((0, 3)), p_WT, 0.1) == -np.inf
+    for points, expect_free in ((obj, True), (np.concatenate([table, obj]), False)):
+        env = CollisionEnvironment.from_points(points, 0.03, grasp_target=p_WT, grasp_target_radius=0.1)
+        assert bool(checker.with_environment(env).is_free(q[None])[0]) is expect_free

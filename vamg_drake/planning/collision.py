@@ -138,6 +138,29 @@ class DistanceField:
                                    cell_keys=np.ascontiguousarray(keys, np.int64), cell_start=cell_start)
 
 
+def support_height(points: np.ndarray, p_WT: np.ndarray, radius: float, bin_size: float = 0.01,
+                   clearance: float = 0.01) -> float:
+    """The top [m] of the surface a target at p_WT stands on, plus `clearance`
+    for sensor noise: the most populated `bin_size` height bin of the points
+    within `radius` horizontally and up to `radius` below the target (a table
+    top is a plane of many points; the object's own points spread over its
+    height). -inf when that bin's points do not spread out under the target
+    like a surface (std < 0.3 `radius` along x or y) or there are none.
+    """
+    p = np.asarray(points, dtype=float).reshape(-1, 3)
+    near = p[(np.linalg.norm(p[:, :2] - p_WT[:2], axis=1) <= radius) & (p[:, 2] <= p_WT[2])
+             & (p[:, 2] >= p_WT[2] - radius)]
+    if near.shape[0] == 0:
+        return -np.inf
+    bins = np.floor(near[:, 2] / bin_size).astype(np.int64)
+    values, counts = np.unique(bins, return_counts=True)
+    top = values[counts == counts.max()].max()
+    plane = near[bins == top, :2]
+    if np.min(np.std(plane, axis=0)) < 0.3 * radius:
+        return -np.inf  # no plane spreads under the target: only the object's own points
+    return float((top + 1) * bin_size + clearance)
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class CollisionEnvironment:
     """What the robot must not touch: a distance field and/or exact primitives.
@@ -148,10 +171,14 @@ class CollisionEnvironment:
         cyl_p: (C, 3) cylinder centres; cyl_R (C, 3, 3) (axis = column 2);
             cyl_radius (C,), cyl_half_length (C,).
         grasp_target: (3,) centre of the grasp target's ball: the field's
-            points within `grasp_target_radius` of it are the object to grasp,
+            points within `grasp_target_radius` of it and above
+            `grasp_target_floor` are the object to grasp,
             which the gripper's spheres may touch and the rest of the robot
             may not (0 radius: no such ball).
         grasp_target_radius: [m].
+        grasp_target_floor: height of the surface the target stands on [m]:
+            points at or below it are the support (a table top), which the
+            gripper must not touch either.
     """
 
     field: DistanceField | None = None
@@ -164,6 +191,7 @@ class CollisionEnvironment:
     cyl_half_length: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
     grasp_target: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
     grasp_target_radius: float = 0.0
+    grasp_target_floor: float = -np.inf
 
     @property
     def is_empty(self) -> bool:
@@ -181,7 +209,8 @@ class CollisionEnvironment:
         if not np.all(np.isfinite(grasp_target)):
             raise ValueError(f"grasp_target must be finite, got {grasp_target}")
         return CollisionEnvironment(field=DistanceField.from_points(points, resolution),
-                                    grasp_target=grasp_target, grasp_target_radius=float(grasp_target_radius))
+                                    grasp_target=grasp_target, grasp_target_radius=float(grasp_target_radius),
+                                    grasp_target_floor=support_height(points, grasp_target, grasp_target_radius))
 
     @staticmethod
     def from_occupancy(occupied: np.ndarray, origin: np.ndarray, resolution: float) -> "CollisionEnvironment":
@@ -803,7 +832,7 @@ def base_pose_free_exact(x, y, theta, data):
 def _sphere_hits_points(cx, cy, cz, r, dist, origin, h, pts, cell_keys, cell_start, exempt, tgt_c, tgt_r):
     """Whether some obstacle point lies within r of (cx, cy, cz): the points of
     the occupied cells (dist == 0) that the sphere's bounding box overlaps,
-    except, when `exempt`, those within tgt_r of tgt_c."""
+    except, when `exempt`, those within tgt_r of tgt_c[:3] and above tgt_c[3]."""
     eps = 1e-9
     lo = np.empty(3, np.int64)
     hi = np.empty(3, np.int64)
@@ -840,7 +869,7 @@ def _sphere_hits_points(cx, cy, cz, r, dist, origin, h, pts, cell_keys, cell_sta
                             tx = pts[n, 0] - tgt_c[0]
                             ty = pts[n, 1] - tgt_c[1]
                             tz = pts[n, 2] - tgt_c[2]
-                            if tx * tx + ty * ty + tz * tz <= tgt_r * tgt_r:
+                            if tx * tx + ty * ty + tz * tz <= tgt_r * tgt_r and pts[n, 2] > tgt_c[3]:
                                 continue
                         return True
     return False
@@ -1176,7 +1205,8 @@ class CollisionChecker:
                            np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(1, np.int64))
         else:
             self._field = (True, f.dist, f.origin, f.resolution, f.margin, f.points, f.cell_keys, f.cell_start)
-        self._field += (np.ascontiguousarray(env.grasp_target, dtype=float), float(env.grasp_target_radius),
+        self._field += (np.append(np.asarray(env.grasp_target, dtype=float), env.grasp_target_floor),
+                        float(env.grasp_target_radius),
                         self.is_gripper)
 
     def with_environment(self, env: CollisionEnvironment) -> "CollisionChecker":
