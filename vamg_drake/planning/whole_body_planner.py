@@ -54,6 +54,7 @@ import time
 import numpy as np
 
 from vamg_drake.planning import smoothing
+from vamg_drake.planning.arm_roadmap import ArmRoadmap
 from vamg_drake.planning.base_costmap import base_costmap
 from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment, densify
 from vamg_drake.planning.hybrid_astar import Footprint2D, HybridAStar, HybridAStarConfig
@@ -190,6 +191,8 @@ class WholeBodyPlanner:
         self._hybrid: HybridAStar | None = None
         self._bare: CollisionChecker | None = None
         self.travel = np.asarray(config.travel_torso_arm, dtype=float)
+        # Loaded (or built, once per machine: ~2 s) now, not inside a plan.
+        self._roadmap: ArmRoadmap | None = ArmRoadmap.for_checker(checker, self.travel)
         self.footprint, self.bands = self._travel_footprint(checker, self.travel, config.footprint_split_z)
         self.footprint_radius = self.footprint.bounding_radius
         self.robot_top = float(self.bands[-1][1])
@@ -511,12 +514,17 @@ class WholeBodyPlanner:
         if path is not None:
             timings["arm"] += 1e3 * (time.perf_counter() - ta)
             return self._refine([path], timings, rng, deadline), "", ""
-        # (d) fold into a carry pose, drive, unfold, with fixed-base arm
-        # searches at the start/goal placements. Carry candidates: the
-        # travel pose (inside the footprint), the goal arm (unfold at the
-        # start), the start arm (unfold at the goal). Roll joints are taken
-        # nearest to the start's so that the whole path stays unwrapped.
-        carries = [travel, qg[3:], qs[3:]]
+        # (d) the same with fixed-base arm searches (lazy roadmap, then
+        # RRT-Connect) at the start placement and at or before the goal.
+        path = self._via_carry(poses, qs, qg, travel, rng, deadline)
+        if path is not None:
+            timings["arm"] += 1e3 * (time.perf_counter() - ta)
+            return self._refine(path, timings, rng, deadline), "", ""
+        # (e) fold into another carry pose, drive, unfold, with fixed-base
+        # arm searches at the start/goal placements: the goal arm (unfold at
+        # the start), the start arm (unfold at the goal). Roll joints are
+        # taken nearest to the start's so that the whole path stays unwrapped.
+        carries = [qg[3:], qs[3:]]
         for carry in carries:
             path = self._via_carry(poses, qs, qg, carry, rng, deadline)
             if path is not None:
@@ -529,62 +537,162 @@ class WholeBodyPlanner:
         """Pieces: fold qs->carry (synchronized over the first part of the base
         path, or at the start placement), drive holding carry, unfold
         carry->qg (synchronized over the last part, or at the goal placement).
-        Without `search`, only the synchronized variants are tried."""
+
+        Arm motions, cheapest first: the straight joint-space line and (for
+        the travel pose) the arm roadmap's self-collision-free path to it
+        (`ArmRoadmap.to_carry`), each synchronized with the base over part of
+        its path, or at a fixed placement along it (driving there holding the
+        start arm, or from there holding the goal arm); with `search`,
+        at the fixed start/goal placement the roadmap searched lazily with
+        the whole-body check (`ArmRoadmap.connect`), then RRT-Connect. Roadmap paths end at their target up to whole turns of
+        continuous joints (the carry then follows the fold's end)."""
         cfg = self.config
         checker = self.checker
 
         def free(Q):
             return checker.first_collision(densify(Q, checker)) < 0
 
+        def check_deadline():
+            if time.perf_counter() > deadline:
+                raise _Timeout()
+
+        roadmap = self._arm_roadmap() if self._is_travel(carry) else None
         pieces = []
         fold_k = 0
         if np.max(np.abs(qs[3:] - carry)) > 1e-9:
-            done = False
-            for f in cfg.fold_fractions:
-                if time.perf_counter() > deadline:
-                    raise _Timeout()
-                if f <= 0.0:
-                    if not search:
-                        continue
-                    arm = self._arm_motion(qs[:3], qs[3:], carry, rng, deadline)
-                    if arm is not None:
-                        pieces.append(arm)
-                        done = True
+            folds = [np.stack([qs[3:], carry])]
+            if roadmap is not None:
+                W = roadmap.to_carry(qs[3:])
+                if W is not None:
+                    folds.append(W)
+            fold = None
+            departs = {}
+            for W in folds:
+                for f in cfg.fold_fractions:
+                    check_deadline()
+                    k = self._index_at_fraction(poses, f) if f > 0.0 else 0
+                    Qf = self._synchronized_path(poses[: k + 1], W)
+                    if free(Qf):
+                        fold, fold_k = [Qf], k
                         break
-                    continue
-                k = self._index_at_fraction(poses, f)
-                Qf = self._synchronized(poses[: k + 1], qs[3:], carry)
-                if free(Qf):
-                    pieces.append(Qf)
-                    fold_k = k
-                    done = True
+                    if k == 0:
+                        continue
+                    # Or drive off holding the start arm, then fold there.
+                    if k not in departs:
+                        Qd = self._synchronized(poses[: k + 1], qs[3:], qs[3:])
+                        departs[k] = Qd if free(Qd) else None
+                    Qf = self._synchronized_path(poses[k: k + 1], W)
+                    if departs[k] is not None and free(Qf):
+                        fold, fold_k = [departs[k], Qf], k
+                        break
+                if fold is not None:
                     break
-            if not done:
+            if fold is None:
+                check_deadline()
+                arm = self._arm_motion(poses[0], qs[3:], carry, rng, deadline, search=search)
+                fold = None if arm is None else [arm]
+            if fold is None:
                 return None
+            pieces += fold
+            carry = fold[-1][-1, 3:]
         needs_unfold = np.max(np.abs(qg[3:] - carry)) > 1e-9
+        unfolds = [np.stack([carry, qg[3:]])] if needs_unfold else []
+        if needs_unfold and roadmap is not None:
+            W = roadmap.to_carry(qg[3:])
+            if W is not None:
+                unfolds.append(W[::-1] + (carry - W[-1]))  # from the carry (whole turns apart)
         fractions = cfg.placement_fractions if needs_unfold else (1.0,)
-        for f in fractions:
-            if time.perf_counter() > deadline:
-                raise _Timeout()
-            k = max(self._index_at_fraction(poses, f), fold_k)
-            if f >= 1.0:
-                k = poses.shape[0] - 1
-            drive = self._synchronized(poses[fold_k: k + 1], carry, carry)
-            if not free(drive):
-                continue
-            if not needs_unfold:
-                return pieces + [drive]
-            if k >= poses.shape[0] - 1:
-                if not search:
+        drives = {}
+
+        def drive_to(k):
+            if k not in drives:
+                Q = self._synchronized(poses[fold_k: k + 1], carry, carry)
+                drives[k] = Q if free(Q) else None
+            return drives[k]
+
+        last = poses.shape[0] - 1
+        approaches = {}
+        for W in (unfolds or [None]):
+            for f in fractions:
+                check_deadline()
+                k = last if f >= 1.0 else max(self._index_at_fraction(poses, f), fold_k)
+                drive = drive_to(k)
+                if drive is None:
                     continue
-                arm = self._arm_motion(poses[-1], carry, qg[3:], rng, deadline)
-                if arm is None:
+                if W is None:
+                    return pieces + [drive]
+                Qu = self._synchronized_path(poses[k:], W)
+                if free(Qu):
+                    return pieces + [drive, Qu]
+                if k == last:
                     continue
-                return pieces + [drive, arm]
-            Qu = self._synchronized(poses[k:], carry, qg[3:])
-            if free(Qu):
-                return pieces + [drive, Qu]
+                # Or unfold there and approach the goal holding its arm.
+                if k not in approaches:
+                    Qa = self._synchronized(poses[k:], qg[3:], qg[3:])
+                    approaches[k] = Qa if free(Qa) else None
+                Qu = self._synchronized_path(poses[k: k + 1], W)
+                if approaches[k] is not None and free(Qu):
+                    Qa = approaches[k].copy()
+                    Qa[:, 3:] += W[-1] - qg[3:]  # whole turns, if W ends so
+                    return pieces + [drive, Qu, Qa]
+        if needs_unfold and drive_to(last) is not None:
+            check_deadline()
+            arm = self._arm_motion(poses[-1], carry, qg[3:], rng, deadline, search=search)
+            if arm is not None:
+                return pieces + [drives[last], arm]
+        if needs_unfold and search:
+            # Unfold at a placement before the goal (fixed-base search) and
+            # approach holding the goal arm.
+            for f in fractions:
+                k = max(self._index_at_fraction(poses, f), fold_k)
+                if k >= last or drive_to(k) is None:
+                    continue
+                if k not in approaches:
+                    Qa = self._synchronized(poses[k:], qg[3:], qg[3:])
+                    approaches[k] = Qa if free(Qa) else None
+                if approaches[k] is None:
+                    continue
+                check_deadline()
+                arm = self._arm_motion(poses[k], carry, qg[3:], rng, deadline, search=True)
+                if arm is not None:
+                    Qa = approaches[k].copy()
+                    Qa[:, 3:] += arm[-1, 3:] - qg[3:]  # whole turns, if the arm path ended so
+                    return pieces + [drives[k], arm, Qa]
         return None
+
+    def _arm_roadmap(self) -> ArmRoadmap:
+        if self._roadmap is None:
+            self._roadmap = ArmRoadmap.for_checker(self.checker, self.travel)
+        return self._roadmap
+
+    def _is_travel(self, arm: np.ndarray) -> bool:
+        """arm (8,) is the travel pose up to whole turns of continuous joints."""
+        d = np.asarray(arm, float) - self.travel
+        c = layout.IS_CONTINUOUS[3:]
+        d[c] = layout.wrap_angle(d[c])
+        return bool(np.max(np.abs(d)) < 1e-9)
+
+    @staticmethod
+    def _synchronized_path(poses: np.ndarray, W: np.ndarray) -> np.ndarray:
+        """Whole-body states along base poses (M, 3) while the torso/arm follows
+        the waypoints W (K, 8), both in proportion to their progress (base:
+        travel time; arm: length): the states at every base pose and every
+        waypoint, so that the straight segments between them are the motion.
+        One pose: the arm moves at that fixed base."""
+        seg = np.abs(np.diff(W, axis=0)).sum(axis=1)
+        sa = np.concatenate([[0.0], np.cumsum(seg)])
+        sa = sa / sa[-1] if sa[-1] > 0 else np.linspace(0.0, 1.0, W.shape[0])
+        if poses.shape[0] == 1:
+            return np.concatenate([np.repeat(poses, W.shape[0], axis=0), W], axis=1)
+        d = np.diff(poses, axis=0)
+        t = np.maximum(np.hypot(d[:, 0], d[:, 1]) / layout.TRACKER_BASE_V,
+                       np.abs(d[:, 2]) / layout.TRACKER_BASE_W)
+        sb = np.concatenate([[0.0], np.cumsum(t)])
+        sb = sb / sb[-1] if sb[-1] > 0 else np.linspace(0.0, 1.0, poses.shape[0])
+        s = np.union1d(sa, sb)
+        base = np.column_stack([np.interp(s, sb, poses[:, i]) for i in range(3)])
+        arm = np.column_stack([np.interp(s, sa, W[:, i]) for i in range(W.shape[1])])
+        return np.concatenate([base, arm], axis=1)
 
     @staticmethod
     def _index_at_fraction(poses: np.ndarray, f: float) -> int:
@@ -642,9 +750,27 @@ class WholeBodyPlanner:
     def _rrt_config(self) -> KernelRRTConfig:
         return KernelRRTConfig(step=self.config.rrt_step, max_iterations=self.config.rrt_max_iterations)
 
-    def _arm_motion(self, base: np.ndarray, arm_a: np.ndarray, arm_b: np.ndarray, rng, deadline):
-        """A fixed-base torso+arm path as whole-body states (N, 11), or None."""
-        space = WholeBodySearchSpace.fixed_base(self.checker, np.asarray(base, float))
+    def _arm_motion(self, base: np.ndarray, arm_a: np.ndarray, arm_b: np.ndarray, rng, deadline,
+                    search: bool = True):
+        """A fixed-base torso+arm path as whole-body states (N, 11), or None:
+        the straight motion; with `search` then the arm roadmap searched
+        lazily with the whole-body check at this base (ending at arm_b up to
+        whole turns of continuous joints), else RRT-Connect."""
+        base = np.asarray(base, float)
+        space = WholeBodySearchSpace.fixed_base(self.checker, base)
+        if space.motion_free(arm_a, arm_b):
+            return space.to_configurations(np.stack([arm_a, arm_b]))
+
+        def state_free(X):
+            return self.checker.is_free(np.concatenate([np.repeat(base[None], X.shape[0], axis=0), X], axis=1))
+
+        if not search:
+            return None
+        path = self._arm_roadmap().connect(arm_a, arm_b, state_free, space.motion_free)
+        if path is not None:
+            return space.to_configurations(path)
+        if time.perf_counter() > deadline:
+            raise _Timeout()
         lo = layout.SAMPLE_LOWER[3:]
         hi = layout.SAMPLE_UPPER[3:]
         # Continuous joints: one turn around the ends' midpoint (the ends are
@@ -679,6 +805,9 @@ class WholeBodyPlanner:
                 P = smoothing.smooth_if_free(
                     P, lambda S: checker.first_collision(densify(S, checker)) < 0,
                     self.config.bspline_samples)
+            if out and np.max(np.abs(P[0] - out[-1][-1])) > 1e-9:
+                # Pieces must join where they were checked; a gap is a bug.
+                raise RuntimeError(f"whole-body path pieces do not join (gap {np.max(np.abs(P[0] - out[-1][-1]))})")
             out.append(P if not out else P[1:])
         dense = densify(np.concatenate(out), checker)
         timings["refine"] += 1e3 * (time.perf_counter() - tr)
