@@ -188,3 +188,21 @@ def test_dense_target_cloud_feeds_the_grasp_candidates(pipeline, scene) -> None:
     assert not without.success and "too few observed points" in without.failure_reason
     with_dense = pipeline.sample_grasp(PolicyInputs(0.0, q, walls_only, target, dense))
     assert "too few observed points" not in with_dense.failure_reason
+
+
+def test_pregrasp_accept_prefers_but_does_not_require(pipeline, scene) -> None:
+    """`accept` picks among valid samples; when it passes none, the first valid
+    sample is still returned (a closer view may bring better grasps)."""
+    points, target = scene
+    q0 = layout.stow_configuration(-1.5, 0.5, 0.0)
+    is_free = pipeline.collision_fn(points, target, q0)
+    seen = []
+    picky = pipeline.pregrasp.sample(points, target, q0, is_free, np.random.default_rng(0),
+                                     accept=lambda q: seen.append(q) or len(seen) == 2)
+    assert picky.success and picky.funnel["accepted"] == 1
+    np.testing.assert_array_equal(picky.q, seen[1])
+    seen.clear()
+    none = pipeline.pregrasp.sample(points, target, q0, is_free, np.random.default_rng(0),
+                                    accept=lambda q: seen.append(q) or False)
+    assert none.success and none.funnel["accepted"] == 0 and len(seen) > 1
+    np.testing.assert_array_equal(none.q, seen[0])

@@ -310,9 +310,11 @@ class PregraspSampler:
             ee_poses: (K, 4, 4) end-effector poses to draw p_ee from instead of
                 the sphere around the target (e.g. the pre-grasp poses of grasp
                 candidates, so that the grasp stage succeeds from the result).
-            accept: a last test of a valid, visible configuration (11,) (e.g.
-                "the grasp stage finds a grasp from here"); at most
-                `PregraspConfig.max_accept_tests` per base are tried.
+            accept: a preference among valid, visible configurations (11,)
+                (e.g. "the grasp stage finds a grasp from here"): at most
+                `PregraspConfig.max_accept_tests` per base are tested, and the
+                first valid, visible sample is returned when none passes (a
+                closer view may still bring better grasps).
         """
         t0 = time.perf_counter()
         cfg = self.config
@@ -340,6 +342,7 @@ class PregraspSampler:
         if bases.shape[0] == 0:
             return fail("no navigable base cell within manipulation radius of the target (costmap)")
         seed_arm = np.asarray(cfg.ik_seed_arm, float) if len(cfg.ik_seed_arm) else q_current[layout.ARM]
+        fallback: PregraspResult | None = None  # the first valid, visible sample when `accept` passes none
         for base in bases:
             n = min(cfg.samples_per_base, budget - funnel["samples"])
             if n <= 0:
@@ -388,11 +391,15 @@ class PregraspSampler:
             funnel["visible"] += int(visible.sum())
             for i in np.flatnonzero(visible)[: cfg.max_accept_tests if accept is not None else 1]:
                 if accept is not None:
+                    if fallback is None:
+                        fallback = PregraspResult(True, q[i], X_WG[idx[i]], head[i], 0, funnel, 0.0)
                     if not accept(q[i]):
                         continue
                     funnel["accepted"] += 1
                 return PregraspResult(True, q[i], X_WG[idx[i]], head[i], funnel["samples"], funnel,
                                       time.perf_counter() - t0)
+        if fallback is not None:
+            return dc.replace(fallback, num_samples=funnel["samples"], elapsed_s=time.perf_counter() - t0)
         accepted = f", accepted {funnel['accepted']}" if accept is not None else ""
         return fail(
             f"no valid pre-grasp in {funnel['samples']} samples "
