@@ -9,7 +9,9 @@ sight blocked by furniture where such a goal exists: `blocked_fraction`),
 random collision-free torso/arm configurations at both ends.
 
 Measured per problem:
-  * ours: `WholeBodyPlanner.plan` wall time on a planner just given the room
+  * ours: `WholeBodyPlanner.plan` wall time (and its process CPU time,
+    `cpu_*`: less disturbed on a shared machine; `load_average` says how
+    shared it was) on a planner just given the room
     (so it includes the per-map 2D base costmap; planning + refinement + time
     parametrization), success, and every successful trajectory re-checked in
     Drake's exact geometry at 1 cm sphere-displacement resolution
@@ -28,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 
 import numpy as np
@@ -111,9 +114,10 @@ def main() -> None:
         if args.map:
             env = env.voxelized(0.03)
         planner = WholeBodyPlanner.for_fetch(env, PlannerConfig(seed=seed))
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         result = planner.plan(problem.q_start, problem.q_goal)
         ms = 1e3 * (time.perf_counter() - t0)
+        cpu_ms = 1e3 * (time.process_time() - c0)
         t0 = time.perf_counter()
         planner.plan(problem.q_start, problem.q_goal)  # again, on the warm costmap
         plan_only_ms = 1e3 * (time.perf_counter() - t0)
@@ -122,7 +126,8 @@ def main() -> None:
         if result.success:
             dense = densify(result.trajectory.q, planner.checker, resolution=0.01)
             gt_bad = any(drake.in_collision(q) for q in dense) or not np.all(layout.within_limits(dense))
-        row = dict(seed=seed, success=result.success, reason=result.reason, ms=ms, plan_only_ms=plan_only_ms,
+        row = dict(seed=seed, success=result.success, reason=result.reason, ms=ms, cpu_ms=cpu_ms,
+                   plan_only_ms=plan_only_ms,
                    costmap_ms=result.timings.get("costmap", 0.0), blocked=problem.blocked,
                    attempts=result.attempts, gt_collision=gt_bad,
                    duration_s=result.trajectory.duration if result.success else None)
@@ -142,6 +147,9 @@ def main() -> None:
         median_ms=float(np.median(ms)),
         p95_ms=float(np.percentile(ms, 95)),
         median_ms_successful=float(np.median(ms[ok])) if ok.any() else None,
+        cpu_median_ms=float(np.median([r["cpu_ms"] for r in rows])),
+        cpu_p95_ms=float(np.percentile([r["cpu_ms"] for r in rows], 95)),
+        load_average=os.getloadavg()[0],
         plan_only_median_ms=float(np.median([r["plan_only_ms"] for r in rows])),
         costmap_median_ms=float(np.median([r["costmap_ms"] for r in rows])),
         blocked_fraction=float(np.mean([r["blocked"] for r in rows])),

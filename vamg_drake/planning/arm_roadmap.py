@@ -182,6 +182,11 @@ class ArmRoadmap:
         pred = np.where(pred < 0, -1, pred).astype(np.int64)
         return ArmRoadmap(checker, nodes, cost, pred, np.column_stack([rows, cols]), config)
 
+    def self_free(self, W: np.ndarray) -> bool:
+        """The torso + arm path W (K, 8) of straight segments is free of
+        self-collision (at any base pose)."""
+        return all(self._space.motion_free(W[i], W[i + 1]) for i in range(W.shape[0] - 1))
+
     def _distance(self, a: np.ndarray, X: np.ndarray) -> np.ndarray:
         return np.abs(X - a) @ self._lever
 

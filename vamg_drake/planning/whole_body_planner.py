@@ -8,18 +8,24 @@ whole-body states that are validated in batches by the sphere checker.
 One attempt:
   0. (Once per plan, deterministic, expansion-capped) base path start->goal
      (`HybridAStar`, which first tries one Reeds-Shepp curve) on a two-band
-     2D costmap (cached per environment), with exact whole-body pose checks
-     where the 2D discs are in doubt and near a parked start/goal.
+     2D clearance map (`base_costmap`, exact distances to the primitives,
+     cached per environment), with exact whole-body pose checks where the
+     2D discs are in doubt and near a parked start/goal.
   1. The base path shortened by randomized Reeds-Shepp shortcuts.
   2. Whole body, cheapest first: (a) the arm interpolated start->goal in sync
      with the whole base path; (b) fold to the travel pose over the first
-     part of the path and unfold over the last part (synchronized, no
-     search); (c) RRT-Connect over (progress along the base path, torso +
-     arm); (d) fold/unfold with fixed-base RRT-Connect at the start/goal
-     placements, for several carry poses.
+     part of the path (or after driving off holding the start arm) and
+     unfold over the last part (or before approaching holding the goal
+     arm), along the straight joint-space line or the arm roadmap's
+     self-collision-free path to the travel pose (`ArmRoadmap`), no search;
+     (c) RRT-Connect over (progress along the base path, torso + arm);
+     (d) as (b) with fixed-base searches at the start placement and at or
+     before the goal (the roadmap searched lazily, then RRT-Connect);
+     (e) fold/unfold with fixed-base searches for other carry poses.
   3. Refinement of the fixed-base arm pieces: randomized shortcutting and
-     B-spline smoothing (kept only where valid); dense re-interpolation of the
-     whole path at the checker's motion resolution and a final batch check.
+     B-spline smoothing (kept only where valid, after its own dense check);
+     the checked pieces joined (they must meet exactly) and re-interpolated
+     at the checker's motion resolution.
   4. Time parametrization within `layout.V_MAX`.
 Budget: `PlannerConfig.attempt_budget_s` per attempt, `max_attempts` attempts.
 
@@ -89,6 +95,8 @@ class PlannerConfig:
         extra_padding: extra sphere inflation [m].
         base_shortcut_iterations: Reeds-Shepp shortcut tries on the base path.
         arm_shortcut_iterations: shortcut tries on each fixed-base arm path.
+        along_path_shortcut_iterations: shortcut tries on an arm path found
+            along the base path (its motions are long: ~2 ms per try).
         bspline_samples: samples of the smoothed fixed-base arm paths.
         rrt_step: RRT-Connect extension step (max-norm) [rad].
         rrt_max_iterations: RRT-Connect iteration limit per arm motion.
@@ -124,6 +132,7 @@ class PlannerConfig:
     extra_padding: float = 0.0
     base_shortcut_iterations: int = 15
     arm_shortcut_iterations: int = 25
+    along_path_shortcut_iterations: int = 6
     bspline_samples: int = 25
     rrt_step: float = 0.6
     rrt_max_iterations: int = 400
@@ -174,6 +183,37 @@ def _unwrap_toward(q_from: np.ndarray, q_to: np.ndarray) -> np.ndarray:
     c = layout.IS_CONTINUOUS
     out[c] = q_from[c] + layout.wrap_angle(q_to[c] - q_from[c])
     return out
+
+
+class _HeldArm:
+    """The base driving along poses (M, 3) with the torso + arm held at `arm`
+    (8,): one batch check of the whole drive, then any stretch of it is
+    answered from the prefix sums of colliding states."""
+
+    def __init__(self, planner: "WholeBodyPlanner", poses: np.ndarray, arm: np.ndarray, first: int = 0,
+                 last: int | None = None):
+        """Only poses first..last (default: all) are checked and may be asked for."""
+        checker = planner.checker
+        self._first = first
+        poses = poses[first: None if last is None else last + 1]
+        self._Q = np.concatenate([poses, np.repeat(np.asarray(arm, float)[None], poses.shape[0], axis=0)], axis=1)
+        if poses.shape[0] < 2:
+            self._index = np.zeros(1, np.int64)
+            self._bad = np.cumsum(~checker.is_free(self._Q))
+            return
+        d = checker.sphere_displacement_bound(np.diff(self._Q, axis=0))
+        counts = np.maximum(np.ceil(d / checker.config.motion_resolution).astype(np.int64), 1)
+        self._index = np.concatenate([[0], np.cumsum(counts)])  # dense index of each pose (as `densify`)
+        self._bad = np.cumsum(~checker.is_free(densify(self._Q, checker)))
+
+    def free(self, a: int, b: int) -> bool:
+        """The drive from pose a to pose b (a <= b) is free."""
+        i0, i1 = self._index[a - self._first], self._index[b - self._first]
+        return bool(self._bad[i1] - (self._bad[i0 - 1] if i0 > 0 else 0) == 0)
+
+    def states(self, a: int, b: int) -> np.ndarray:
+        """Whole-body states of the drive from pose a to pose b."""
+        return self._Q[a - self._first: b - self._first + 1].copy()
 
 
 class WholeBodyPlanner:
@@ -559,14 +599,17 @@ class WholeBodyPlanner:
         roadmap = self._arm_roadmap() if self._is_travel(carry) else None
         pieces = []
         fold_k = 0
+        last = poses.shape[0] - 1
         if np.max(np.abs(qs[3:] - carry)) > 1e-9:
             folds = [np.stack([qs[3:], carry])]
             if roadmap is not None:
+                if not roadmap.self_free(folds[0]):
+                    folds = []
                 W = roadmap.to_carry(qs[3:])
                 if W is not None:
                     folds.append(W)
             fold = None
-            departs = {}
+            depart = None  # driving off holding the start arm
             for W in folds:
                 for f in cfg.fold_fractions:
                     check_deadline()
@@ -578,12 +621,12 @@ class WholeBodyPlanner:
                     if k == 0:
                         continue
                     # Or drive off holding the start arm, then fold there.
-                    if k not in departs:
-                        Qd = self._synchronized(poses[: k + 1], qs[3:], qs[3:])
-                        departs[k] = Qd if free(Qd) else None
+                    if depart is None:
+                        k_max = self._index_at_fraction(poses, max(cfg.fold_fractions))
+                        depart = _HeldArm(self, poses, qs[3:], last=k_max)
                     Qf = self._synchronized_path(poses[k: k + 1], W)
-                    if departs[k] is not None and free(Qf):
-                        fold, fold_k = [departs[k], Qf], k
+                    if depart.free(0, k) and free(Qf):
+                        fold, fold_k = [depart.states(0, k), Qf], k
                         break
                 if fold is not None:
                     break
@@ -598,20 +641,19 @@ class WholeBodyPlanner:
         needs_unfold = np.max(np.abs(qg[3:] - carry)) > 1e-9
         unfolds = [np.stack([carry, qg[3:]])] if needs_unfold else []
         if needs_unfold and roadmap is not None:
+            if not roadmap.self_free(unfolds[0]):
+                unfolds = []
             W = roadmap.to_carry(qg[3:])
             if W is not None:
                 unfolds.append(W[::-1] + (carry - W[-1]))  # from the carry (whole turns apart)
         fractions = cfg.placement_fractions if needs_unfold else (1.0,)
-        drives = {}
+        hold = _HeldArm(self, poses, carry, first=fold_k)
+        approach = None  # holding the goal arm into the goal
+        k_min = max(self._index_at_fraction(poses, min(fractions)), fold_k)
 
         def drive_to(k):
-            if k not in drives:
-                Q = self._synchronized(poses[fold_k: k + 1], carry, carry)
-                drives[k] = Q if free(Q) else None
-            return drives[k]
+            return hold.states(fold_k, k) if hold.free(fold_k, k) else None
 
-        last = poses.shape[0] - 1
-        approaches = {}
         for W in (unfolds or [None]):
             for f in fractions:
                 check_deadline()
@@ -627,37 +669,33 @@ class WholeBodyPlanner:
                 if k == last:
                     continue
                 # Or unfold there and approach the goal holding its arm.
-                if k not in approaches:
-                    Qa = self._synchronized(poses[k:], qg[3:], qg[3:])
-                    approaches[k] = Qa if free(Qa) else None
+                if approach is None:
+                    approach = _HeldArm(self, poses, qg[3:], first=k_min)
                 Qu = self._synchronized_path(poses[k: k + 1], W)
-                if approaches[k] is not None and free(Qu):
-                    Qa = approaches[k].copy()
+                if approach.free(k, last) and free(Qu):
+                    Qa = approach.states(k, last)
                     Qa[:, 3:] += W[-1] - qg[3:]  # whole turns, if W ends so
                     return pieces + [drive, Qu, Qa]
         if needs_unfold and drive_to(last) is not None:
             check_deadline()
             arm = self._arm_motion(poses[-1], carry, qg[3:], rng, deadline, search=search)
             if arm is not None:
-                return pieces + [drives[last], arm]
+                return pieces + [drive_to(last), arm]
         if needs_unfold and search:
             # Unfold at a placement before the goal (fixed-base search) and
             # approach holding the goal arm.
+            if approach is None:
+                approach = _HeldArm(self, poses, qg[3:], first=k_min)
             for f in fractions:
                 k = max(self._index_at_fraction(poses, f), fold_k)
-                if k >= last or drive_to(k) is None:
-                    continue
-                if k not in approaches:
-                    Qa = self._synchronized(poses[k:], qg[3:], qg[3:])
-                    approaches[k] = Qa if free(Qa) else None
-                if approaches[k] is None:
+                if k >= last or not hold.free(fold_k, k) or not approach.free(k, last):
                     continue
                 check_deadline()
                 arm = self._arm_motion(poses[k], carry, qg[3:], rng, deadline, search=True)
                 if arm is not None:
-                    Qa = approaches[k].copy()
+                    Qa = approach.states(k, last)
                     Qa[:, 3:] += arm[-1, 3:] - qg[3:]  # whole turns, if the arm path ended so
-                    return pieces + [drives[k], arm, Qa]
+                    return pieces + [drive_to(k), arm, Qa]
         return None
 
     def _arm_roadmap(self) -> ArmRoadmap:
@@ -743,7 +781,7 @@ class WholeBodyPlanner:
                 raise _Timeout()
             return None
         if path.shape[0] > 2:
-            path = smoothing.shortcut(path, space.motion_free, rng, self.config.arm_shortcut_iterations)
+            path = smoothing.shortcut(path, space.motion_free, rng, self.config.along_path_shortcut_iterations)
         out = [space.states(path[k], path[k + 1])[(1 if k else 0):] for k in range(path.shape[0] - 1)]
         return np.concatenate(out)
 
