@@ -185,6 +185,14 @@ def _unwrap_toward(q_from: np.ndarray, q_to: np.ndarray) -> np.ndarray:
     return out
 
 
+def _wrap_arm(arm: np.ndarray) -> np.ndarray:
+    """Torso + arm (8,) with the continuous joints wrapped into [-pi, pi)."""
+    out = np.array(arm, float, copy=True)
+    c = layout.IS_CONTINUOUS[3:]
+    out[c] = layout.wrap_angle(out[c])
+    return out
+
+
 class _HeldArm:
     """The base driving along poses (M, 3) with the torso + arm held at `arm`
     (8,): one batch check of the whole drive, then any stretch of it is
@@ -539,7 +547,10 @@ class WholeBodyPlanner:
         ta = self._stage_start = time.perf_counter()
         # (a) arm interpolated in sync with the whole base path.
         Q = self._synchronized(poses, qs[3:], qg[3:])
-        if checker.first_collision(densify(Q, checker)) < 0:
+        # (the arm's straight line alone is checked for self-collision first:
+        # short, and independent of the base)
+        if (self._arm_roadmap().self_free(np.stack([qs[3:], qg[3:]]))
+                and checker.first_collision(densify(Q, checker)) < 0):
             timings["arm"] += 1e3 * (time.perf_counter() - ta)
             return self._refine([Q], timings, rng, deadline), "", ""
         # (b) fold into the travel pose while driving, unfold while driving
@@ -601,13 +612,7 @@ class WholeBodyPlanner:
         fold_k = 0
         last = poses.shape[0] - 1
         if np.max(np.abs(qs[3:] - carry)) > 1e-9:
-            folds = [np.stack([qs[3:], carry])]
-            if roadmap is not None:
-                if not roadmap.self_free(folds[0]):
-                    folds = []
-                W = roadmap.to_carry(qs[3:])
-                if W is not None:
-                    folds.append(W)
+            folds = self._arm_lines(roadmap, qs[3:], carry)
             fold = None
             depart = None  # driving off holding the start arm
             for W in folds:
@@ -639,13 +644,7 @@ class WholeBodyPlanner:
             pieces += fold
             carry = fold[-1][-1, 3:]
         needs_unfold = np.max(np.abs(qg[3:] - carry)) > 1e-9
-        unfolds = [np.stack([carry, qg[3:]])] if needs_unfold else []
-        if needs_unfold and roadmap is not None:
-            if not roadmap.self_free(unfolds[0]):
-                unfolds = []
-            W = roadmap.to_carry(qg[3:])
-            if W is not None:
-                unfolds.append(W[::-1] + (carry - W[-1]))  # from the carry (whole turns apart)
+        unfolds = self._arm_lines(roadmap, carry, qg[3:]) if needs_unfold else [None]
         fractions = cfg.placement_fractions if needs_unfold else (1.0,)
         hold = _HeldArm(self, poses, carry, first=fold_k)
         approach = None  # holding the goal arm into the goal
@@ -654,7 +653,7 @@ class WholeBodyPlanner:
         def drive_to(k):
             return hold.states(fold_k, k) if hold.free(fold_k, k) else None
 
-        for W in (unfolds or [None]):
+        for W in unfolds:
             for f in fractions:
                 check_deadline()
                 k = last if f >= 1.0 else max(self._index_at_fraction(poses, f), fold_k)
@@ -697,6 +696,27 @@ class WholeBodyPlanner:
                     Qa[:, 3:] += arm[-1, 3:] - qg[3:]  # whole turns, if the arm path ended so
                     return pieces + [drive_to(k), arm, Qa]
         return None
+
+    @staticmethod
+    def _arm_lines(roadmap: ArmRoadmap | None, a: np.ndarray, b: np.ndarray):
+        """Torso + arm paths a -> b to synchronize with the base, generated
+        lazily: the straight line (unless it self-collides, when `roadmap`
+        can tell), then the roadmap's path through the travel pose (one end
+        must be the travel pose; the path ends at b up to whole turns)."""
+        line = np.stack([a, b])
+        if roadmap is None:
+            yield line
+            return
+        if roadmap.self_free(line):
+            yield line
+        if roadmap.nodes.shape[0] and np.max(np.abs(_wrap_arm(a) - roadmap.nodes[0])) < 1e-9:
+            W = roadmap.to_carry(b)  # b -> travel, reversed and shifted to start at a
+            if W is not None:
+                yield W[::-1] + (a - W[-1])
+        else:
+            W = roadmap.to_carry(a)
+            if W is not None:
+                yield W
 
     def _arm_roadmap(self) -> ArmRoadmap:
         if self._roadmap is None:
