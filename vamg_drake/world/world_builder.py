@@ -45,14 +45,19 @@ RENDERER_NAME = "vamg_vtk"
 
 @dc.dataclass
 class RobotGains:
-    """PD gains of the robot's joint actuators: kp [N/m or Nm/rad], kd."""
+    """PD gains of the robot's joint actuators: kp [N/m or Nm/rad], kd.
+
+    The fingers squeeze with kp times the gap between the closed command and
+    the object (capped by the URDF's 60 N effort): at 300 N/m a 6 cm object got
+    ~4 N per finger and slipped out during the lift; 3000 N/m gives ~30 N.
+    """
 
     base_xy: tuple[float, float] = (40000.0, 4000.0)
     base_theta: tuple[float, float] = (6000.0, 600.0)
     torso: tuple[float, float] = (20000.0, 2000.0)
     arm: tuple[float, float] = (400.0, 40.0)
     head: tuple[float, float] = (40.0, 4.0)
-    fingers: tuple[float, float] = (300.0, 10.0)
+    fingers: tuple[float, float] = (3000.0, 30.0)
 
 
 @dc.dataclass
