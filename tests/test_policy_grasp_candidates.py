@@ -34,6 +34,27 @@ def _objects() -> dict[str, np.ndarray]:
     }
 
 
+def test_small_ball_on_a_table_is_grasped_nearer_the_fingertips() -> None:
+    """A 4.7 cm marble (YCB 063-a) on a table: with the contacts mid-pad the
+    fingertips or the palm reach into the table top; held back 1-2 cm along
+    the approach, top-down grasps clear it."""
+    center = np.array([0.0, 0.0, 0.874 + 0.024])
+    cloud = np.concatenate([clouds.sphere_cloud(center, 0.024, seed=4),
+                            clouds.table_top_cloud(z=0.874, size=0.5, spacing=0.005)])
+    mid_pad = AntipodalGraspSampler(AntipodalGraspConfig(contact_offsets=[0.0])).propose(cloud, center)
+    assert len(mid_pad) == 0 and "no finger clearance" in mid_pad.failure_reason
+    g = AntipodalGraspSampler().propose(cloud, center)
+    assert len(g) > 0, g.failure_reason
+    _assert_valid_frames(g)
+    # Approaches come from above, and the fingertips (3.1 cm ahead of the pads'
+    # middle) stay above the table top.
+    assert np.all(g.X_WG[:, 2, 0] < -0.4)
+    tips = g.X_WG[:, :3, 3] + 0.031 * g.X_WG[:, :3, 0]
+    assert np.all(tips[:, 2] > 0.874)
+    with pytest.raises(ValueError, match="contact_offsets"):
+        AntipodalGraspConfig(contact_offsets=[])
+
+
 def _assert_valid_frames(g: GraspCandidates) -> None:
     R = g.X_WG[:, :3, :3]
     np.testing.assert_allclose(R @ np.swapaxes(R, 1, 2), np.broadcast_to(np.eye(3), R.shape), atol=1e-9)
@@ -50,9 +71,11 @@ def test_finds_grasps_on_objects(name: str, with_table: bool) -> None:
     assert len(g) > 0, g.failure_reason
     _assert_valid_frames(g)
     assert np.all(g.width > 0) and np.all(g.width <= GRIPPER_MAX_OPENING)
-    # Contacts (the grasp-frame origin) lie near the target, inside the object's extent.
-    assert np.all(np.linalg.norm(g.X_WG[:, :3, 3] - target, axis=1) <= 0.10 + 1e-9)
-    lo, hi = obj.min(axis=0) - 0.01, obj.max(axis=0) + 0.01
+    # The grasp-frame origin (mid pads) lies near the target, inside the object's
+    # extent up to the largest contact offset (the gripper held back).
+    back = max(AntipodalGraspConfig().contact_offsets)
+    assert np.all(np.linalg.norm(g.X_WG[:, :3, 3] - target, axis=1) <= 0.10 + back + 1e-9)
+    lo, hi = obj.min(axis=0) - 0.01 - back, obj.max(axis=0) + 0.01 + back
     assert np.all((g.X_WG[:, :3, 3] >= lo) & (g.X_WG[:, :3, 3] <= hi))
     if with_table:
         # Nothing approaches from below the table top.

@@ -128,8 +128,13 @@ class AntipodalGraspConfig:
     margin: float = 0.004
     #: How far the gripper travels along the approach before the grasp (pre-grasp offset).
     approach_distance: float = 0.05
-    #: Contact midpoint position along x of G (0: the middle of the pads).
-    contact_x: float = 0.0
+    #: Contact midpoint positions along x of G tried in turn (0: the middle of
+    #: the pads; > 0: the gripper held back so the contacts sit nearer the
+    #: fingertips). A candidate whose mid-pad grasp collides is retried at the
+    #: next offset: a 4.7 cm marble on a table has no mid-pad grasp (the
+    #: fingertips or the 8 cm palm reach below its centre into the table top)
+    #: but has top-down grasps 1-2 cm further out [m].
+    contact_offsets: list[float] = dc.field(default_factory=lambda: [0.0, 0.01, 0.02])
     #: Number of seed contact points.
     num_seeds: int = 250
     #: Approach directions tried around each closing axis.
@@ -150,6 +155,9 @@ class AntipodalGraspConfig:
             )
         if self.num_seeds < 1 or self.num_approaches < 1:
             raise ValueError("AntipodalGraspConfig.num_seeds and num_approaches must be >= 1")
+        if not self.contact_offsets or any(not 0.0 <= o < self.gripper.finger_length / 2 for o in self.contact_offsets):
+            raise ValueError(f"AntipodalGraspConfig.contact_offsets must be a non-empty list in "
+                             f"[0, {self.gripper.finger_length / 2}), got {self.contact_offsets}")
 
 
 def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
@@ -250,17 +258,35 @@ class AntipodalGraspSampler:
         x_axis = (ca[None, :, None] * u[:, None, :] + sa[None, :, None] * v[:, None, :]).reshape(-1, 3)
         rep = lambda a: np.repeat(a, cfg.num_approaches, axis=0)  # noqa: E731
         y_rep, c_rep, w_rep, q_rep = rep(y_axis), rep(center), rep(width), rep(quality)
-        origin = c_rep - cfg.contact_x * x_axis
-        X_WG = _frames_from_axes(x_axis, y_rep, origin)
-
-        ok = self._clearance_ok(crop, X_WG, w_rep)
+        X_WG, ok, offset = self._clear_frames(crop, x_axis, y_rep, c_rep, w_rep)
         if not np.any(ok):
             return GraspCandidates.empty("every antipodal grasp collides with the observed cloud (no finger clearance)")
-        X_WG, w_rep, q_rep, c_rep = X_WG[ok], w_rep[ok], q_rep[ok], c_rep[ok]
+        X_WG, w_rep, q_rep, c_rep, offset = X_WG[ok], w_rep[ok], q_rep[ok], c_rep[ok], offset[ok]
         proximity = 1.0 - np.clip(np.linalg.norm(c_rep - p_WT, axis=1) / cfg.grasp_radius, 0.0, 1.0)
-        score = 0.7 * q_rep + 0.3 * proximity
+        # Contacts nearer the fingertips hold less: 1 cm of offset costs 0.01.
+        score = 0.7 * q_rep + 0.3 * proximity - offset
         order = np.argsort(-score, kind="stable")[: cfg.max_candidates]
         return GraspCandidates(X_WG[order], score[order], w_rep[order])
+
+    def _clear_frames(self, points: np.ndarray, x_axis: np.ndarray, y_axis: np.ndarray, center: np.ndarray,
+                      width: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Grasp frames X_WG (K, 4, 4) with the contacts at the first of
+        ``contact_offsets`` where the gripper clears the cloud, whether one does
+        (K,), and that offset (K,)."""
+        X_WG = np.empty((x_axis.shape[0], 4, 4))
+        ok = np.zeros(x_axis.shape[0], dtype=bool)
+        offset = np.zeros(x_axis.shape[0])
+        todo = np.arange(x_axis.shape[0])
+        for contact_x in self.config.contact_offsets:
+            X = _frames_from_axes(x_axis[todo], y_axis[todo], center[todo] - contact_x * x_axis[todo])
+            clear = self._clearance_ok(points, X, width[todo])
+            X_WG[todo] = X
+            ok[todo[clear]] = True
+            offset[todo] = contact_x
+            todo = todo[~clear]
+            if todo.size == 0:
+                break
+        return X_WG, ok, offset
 
     def _antipodal_pairs(
         self, points: np.ndarray, normals: np.ndarray, seeds_pool: np.ndarray, rng: np.random.Generator

@@ -40,6 +40,20 @@ def can_cloud(
     return points + rng.normal(0, noise, points.shape) if noise > 0 else points
 
 
+def sphere_cloud(
+    center: np.ndarray = (0.0, 0.0, 0.0),
+    radius: float = 0.024,
+    n: int = 1500,
+    seed: int | np.random.Generator = 0,
+) -> np.ndarray:
+    """A ball resting on the plane z = center z - radius (the part above it)."""
+    rng = _rng(seed)
+    v = rng.normal(size=(n, 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    points = np.asarray(center, dtype=float) + radius * v
+    return points[points[:, 2] > center[2] - 0.9 * radius]
+
+
 def box_cloud(
     center: np.ndarray = (0.0, 0.0, 0.0),
     size: np.ndarray = (0.06, 0.09, 0.15),
