@@ -203,16 +203,18 @@ class _HeldArm:
         """Only poses first..last (default: all) are checked and may be asked for."""
         checker = planner.checker
         self._first = first
+        arm = np.asarray(arm, float)
         poses = poses[first: None if last is None else last + 1]
-        self._Q = np.concatenate([poses, np.repeat(np.asarray(arm, float)[None], poses.shape[0], axis=0)], axis=1)
+        self._Q = np.concatenate([poses, np.repeat(arm[None], poses.shape[0], axis=0)], axis=1)
         if poses.shape[0] < 2:
             self._index = np.zeros(1, np.int64)
-            self._bad = np.cumsum(~checker.is_free(self._Q))
+            self._bad = np.cumsum(~checker.drive_free(poses, arm))
             return
         d = checker.sphere_displacement_bound(np.diff(self._Q, axis=0))
         counts = np.maximum(np.ceil(d / checker.config.motion_resolution).astype(np.int64), 1)
         self._index = np.concatenate([[0], np.cumsum(counts)])  # dense index of each pose (as `densify`)
-        self._bad = np.cumsum(~checker.is_free(densify(self._Q, checker)))
+        # The dense states of `densify` (the arm is held: only the base moves).
+        self._bad = np.cumsum(~checker.drive_free(densify(self._Q, checker)[:, :3], arm))
 
     def free(self, a: int, b: int) -> bool:
         """The drive from pose a to pose b (a <= b) is free."""

@@ -32,7 +32,7 @@ from vamg_drake.planning.collision import CollisionChecker, config_free_data
 from vamg_drake.robot import layout
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _state_free(data):
     """Validity of data[0][0] (the (1, 11) scratch configuration)."""
     return config_free_data(data)
