@@ -143,11 +143,12 @@ class AntipodalGraspConfig:
     min_points: int = 20
     #: Fewest object points between the fingers.
     min_support: int = 4
-    #: The object points between the pads must reach this fraction of the pad's
-    #: half width on both sides of the pads' middle along z of G: a grasp on
-    #: the very edge of an object holds it with half a pad (static s0003: pads
-    #: centred 2.9 cm off a 5.7 cm cube's centre closed on nothing).
-    min_pad_span: float = 0.25
+    #: The object's points where the pads touch it (within two margins inside
+    #: the contact width) must reach this fraction of the pad's half width on
+    #: both sides of the pads' middle along z of G: a grasp on the very edge of
+    #: an object holds it with half a pad (static s0003: a tilted side grasp
+    #: with the pads' middle level with a 5.7 cm cube's top edge closed on air).
+    min_pad_span: float = 0.5
     #: Most candidates returned (highest scores first).
     max_candidates: int = 400
 
@@ -370,8 +371,8 @@ def _clearance_kernel(
 ) -> np.ndarray:
     """Per candidate: no point in the closing sweep of the pads or the approach sweep
     of the palm and open fingers, at least ``min_support`` points between the pads,
-    and some of them at z <= -min_span_z and some at z >= min_span_z in G (the
-    pads' middle is over the object, not over its edge)."""
+    and contact-surface points among them at z <= -min_span_z and at z >= min_span_z
+    in G (the pads' middle is over the object, not over its edge)."""
     k_count = X_WG.shape[0]
     ok = np.zeros(k_count, dtype=np.bool_)
     reach2 = (abs(fingertip_x) + finger_length + palm_sweep) ** 2 + (half_open + finger_thickness) ** 2 + palm_height**2
@@ -398,8 +399,9 @@ def _clearance_kernel(
                 if z <= 0.5 * finger_width:
                     if y < inner:
                         support += 1
-                        z_low = min(z_low, z_signed)
-                        z_high = max(z_high, z_signed)
+                        if y >= inner - 3.0 * margin:  # on a contact surface
+                            z_low = min(z_low, z_signed)
+                            z_high = max(z_high, z_signed)
                     elif y <= half_open + finger_thickness:
                         free = False
                         break

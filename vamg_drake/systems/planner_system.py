@@ -162,8 +162,10 @@ class MotionSupervisor:
             if t >= plan.trajectory.end_time + cfg.settle_time:
                 if np.all(error <= cfg.settle_tolerance):
                     return plan, MotionEvent.REACHED
-                _log.warning("motion t=%.2f: goal %d not reached %.1f s after the trajectory ended (max error %.3f)",
-                             t, goal.goal_id, cfg.settle_time, float(error.max()))
+                worst = int(np.argmax(error))
+                _log.warning("motion t=%.2f: goal %d not reached %.1f s after the trajectory ended (max error %.3f "
+                             "at %s)", t, goal.goal_id, cfg.settle_time, float(error[worst]),
+                             layout.WHOLE_BODY_JOINTS[worst])
                 return dc.replace(plan, trajectory=None, success=False, reason=FailureReason.TIMEOUT), MotionEvent.FAILED
         if goal.motion != "plan":
             return plan, MotionEvent.NONE
