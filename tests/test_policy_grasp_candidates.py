@@ -55,6 +55,47 @@ def test_small_ball_on_a_table_is_grasped_nearer_the_fingertips() -> None:
         AntipodalGraspConfig(contact_offsets=[])
 
 
+def _pad_coverage(X_WG: np.ndarray, center: np.ndarray, yaw: float, half: float) -> np.ndarray:
+    """Per grasp: the largest fraction of the pad's width (z of G, 2.6 cm) that
+    lies over a cube (centre, yaw, half size), over contact depths 0-2 cm."""
+    c, s_ = np.cos(yaw), np.sin(yaw)
+    R_WB = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
+    z = np.linspace(-0.013, 0.013, 9)
+    best = np.zeros(len(X_WG))
+    for depth in (0.0, 0.01, 0.02):
+        p = (X_WG[:, None, :3, 3] + depth * X_WG[:, None, :3, 0] + z[None, :, None] * X_WG[:, None, :3, 2])
+        p_B = (p - center) @ R_WB
+        best = np.maximum(best, np.mean(np.all(np.abs(p_B) <= half + 0.002, axis=2), axis=1))
+    return best
+
+
+def test_no_grasp_holds_a_cube_with_half_a_pad() -> None:
+    """Grasps on a 5.7 cm cube keep most of each pad's width over the cube
+    (static s0003: the pads' middle 2.9 cm off the cube's centre, on its edge,
+    closed on air); without the pad-balance test some grasps hang over the edge."""
+    yaw, half = 0.3, 0.0285
+    cube = clouds.box_cloud(center=CENTER, size=(2 * half,) * 3, yaw=yaw, n=3000, noise=0.0005, seed=5)
+    center = CENTER + np.array([0.0, 0.0, half])
+    cloud = np.concatenate([cube, _table()])
+    g = AntipodalGraspSampler(AntipodalGraspConfig(max_candidates=10**6)).propose(cloud, center)
+    assert len(g) > 0, g.failure_reason
+    assert np.min(_pad_coverage(g.X_WG, center, yaw, half)) >= 0.6
+
+    # The mechanism itself: a top-down grasp across the cube, its pads' middle
+    # over the centre is kept; shifted 2.9 cm sideways (over the edge) it is not.
+    sampler = AntipodalGraspSampler()
+    R = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # x down, y across
+    R = np.array([[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0], [0.0, 0.0, 1.0]]) @ R
+    X = np.tile(np.eye(4), (2, 1, 1))
+    X[:, :3, :3] = R
+    X[0, :3, 3] = center + np.array([0.0, 0.0, 0.01])
+    X[1, :3, 3] = X[0, :3, 3] + 0.029 * R[:, 2]
+    sampler._margin = sampler.config.margin
+    assert sampler._clearance_ok(cube, X, np.full(2, 2 * half)).tolist() == [True, False]
+    sampler.config.min_pad_span = 0.0
+    assert sampler._clearance_ok(cube, X, np.full(2, 2 * half)).tolist() == [True, True]
+
+
 def _assert_valid_frames(g: GraspCandidates) -> None:
     R = g.X_WG[:, :3, :3]
     np.testing.assert_allclose(R @ np.swapaxes(R, 1, 2), np.broadcast_to(np.eye(3), R.shape), atol=1e-9)

@@ -108,6 +108,15 @@ def test_judge_collision_rules():
     assert judge.update(0.2, [elbow], 0.8, True).status == COLLISION
     judge = EpisodeJudge(0.8, 30.0)
     assert judge.update(0.0, [palm_on_target], 0.8, False).status == COLLISION
+    # After grasp initiation the palm may touch the support too, but a
+    # self-contact of the palm still counts.
+    palm_on_table = Contact("gripper_link", "table_0/top", False, False, 0.002)
+    palm_on_base = Contact("gripper_link", "base_link", False, True, 0.002)
+    judge = EpisodeJudge(0.8, 30.0)
+    assert judge.update(0.0, [palm_on_table], 0.8, True).status == RUNNING
+    assert judge.update(0.1, [palm_on_base], 0.8, True).status == COLLISION
+    judge = EpisodeJudge(0.8, 30.0)
+    assert judge.update(0.0, [palm_on_table], 0.8, False).status == COLLISION
     judge = EpisodeJudge(0.8, 1.0)
     outcome = judge.update(1.0, [], 0.8, False)
     assert outcome.status == PLANNING and outcome.kind == "time_limit"

@@ -143,6 +143,12 @@ class AntipodalGraspConfig:
     min_points: int = 20
     #: Fewest object points between the fingers.
     min_support: int = 4
+    #: The object's points where the pads touch it (within two margins inside
+    #: the contact width) must reach this fraction of the pad's half width on
+    #: both sides of the pads' middle along z of G: a grasp on the very edge of
+    #: an object holds it with half a pad (static s0003: a tilted side grasp
+    #: with the pads' middle level with a 5.7 cm cube's top edge closed on air).
+    min_pad_span: float = 0.5
     #: Most candidates returned (highest scores first).
     max_candidates: int = 400
 
@@ -155,6 +161,8 @@ class AntipodalGraspConfig:
             )
         if self.num_seeds < 1 or self.num_approaches < 1:
             raise ValueError("AntipodalGraspConfig.num_seeds and num_approaches must be >= 1")
+        if not 0.0 <= self.min_pad_span <= 1.0:
+            raise ValueError(f"AntipodalGraspConfig.min_pad_span must be in [0, 1], got {self.min_pad_span}")
         if not self.contact_offsets or any(not 0.0 <= o < self.gripper.finger_length / 2 for o in self.contact_offsets):
             raise ValueError(f"AntipodalGraspConfig.contact_offsets must be a non-empty list in "
                              f"[0, {self.gripper.finger_length / 2}), got {self.contact_offsets}")
@@ -341,6 +349,7 @@ class AntipodalGraspSampler:
             g.palm_depth + cfg.approach_distance,
             g.palm_height,
             cfg.min_support,
+            cfg.min_pad_span * 0.5 * g.finger_width,
         )
 
 
@@ -358,15 +367,20 @@ def _clearance_kernel(
     palm_sweep: float,
     palm_height: float,
     min_support: int,
+    min_span_z: float,
 ) -> np.ndarray:
     """Per candidate: no point in the closing sweep of the pads or the approach sweep
-    of the palm and open fingers, and at least ``min_support`` points between the pads."""
+    of the palm and open fingers, at least ``min_support`` points between the pads,
+    and contact-surface points among them at z <= -min_span_z and at z >= min_span_z
+    in G (the pads' middle is over the object, not over its edge)."""
     k_count = X_WG.shape[0]
     ok = np.zeros(k_count, dtype=np.bool_)
     reach2 = (abs(fingertip_x) + finger_length + palm_sweep) ** 2 + (half_open + finger_thickness) ** 2 + palm_height**2
     for k in numba.prange(k_count):
         inner = 0.5 * width[k] + margin
         support = 0
+        z_low = 0.0
+        z_high = 0.0
         free = True
         for n in range(points.shape[0]):
             dx = points[n, 0] - X_WG[k, 0, 3]
@@ -379,16 +393,20 @@ def _clearance_kernel(
             if x > 0.0 or x < -finger_length - palm_sweep:
                 continue
             y = abs(X_WG[k, 0, 1] * dx + X_WG[k, 1, 1] * dy + X_WG[k, 2, 1] * dz)
-            z = abs(X_WG[k, 0, 2] * dx + X_WG[k, 1, 2] * dy + X_WG[k, 2, 2] * dz)
+            z_signed = X_WG[k, 0, 2] * dx + X_WG[k, 1, 2] * dy + X_WG[k, 2, 2] * dz
+            z = abs(z_signed)
             if x >= -finger_length:
                 if z <= 0.5 * finger_width:
                     if y < inner:
                         support += 1
+                        if y >= inner - 3.0 * margin:  # on a contact surface
+                            z_low = min(z_low, z_signed)
+                            z_high = max(z_high, z_signed)
                     elif y <= half_open + finger_thickness:
                         free = False
                         break
             elif y <= half_open + finger_thickness and z <= 0.5 * palm_height:
                 free = False
                 break
-        ok[k] = free and support >= min_support
+        ok[k] = free and support >= min_support and z_low <= -min_span_z and z_high >= min_span_z
     return ok

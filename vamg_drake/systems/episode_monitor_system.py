@@ -7,7 +7,14 @@ from pydrake.common.value import AbstractValue
 from pydrake.geometry import QueryObject
 from pydrake.systems.framework import EventStatus, LeafSystem
 
-from vamg_drake.world.episode_monitor import Contact, EpisodeJudge, EpisodeMonitorConfig, EpisodeOutcome, PolicyReport
+from vamg_drake.world.episode_monitor import (
+    GRASP_INITIATED_PHASES,
+    Contact,
+    EpisodeJudge,
+    EpisodeMonitorConfig,
+    EpisodeOutcome,
+    PolicyReport,
+)
 from vamg_drake.world.world_builder import World
 
 
@@ -72,7 +79,10 @@ class EpisodeMonitor(LeafSystem):
         query: QueryObject = self.get_input_port(0).Eval(context)
         x = self.get_input_port(1).Eval(context)
         opening = float(self.get_input_port(2).Eval(context)[0])
-        grasp_started = bool(context.get_abstract_state(self._grasp_started).get_value()) or opening < 0.09
+        report = self._report(context)
+        # Grasp initiation: the linear approach from the pre-grasp pose began (or the gripper closes).
+        grasp_started = (bool(context.get_abstract_state(self._grasp_started).get_value()) or opening < 0.09
+                         or (report is not None and report.phase in GRASP_INITIATED_PHASES))
         plant = self._world.plant
         plant.SetPositionsAndVelocities(self._plant_context, x)
         target_height = plant.EvalBodyPoseInWorld(self._plant_context, self._target).translation()[2]
@@ -92,7 +102,7 @@ class EpisodeMonitor(LeafSystem):
                     depth=pair.depth,
                 )
             )
-        outcome = self.judge.update(context.get_time(), contacts, target_height, grasp_started, self._report(context))
+        outcome = self.judge.update(context.get_time(), contacts, target_height, grasp_started, report)
         state.get_mutable_abstract_state(self._outcome).set_value(outcome)
         state.get_mutable_abstract_state(self._grasp_started).set_value(grasp_started)
         if outcome.done:

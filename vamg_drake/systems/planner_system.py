@@ -72,6 +72,9 @@ class PlannerSystemConfig:
             to grasp: obstacles to the robot except its gripper, which is
             meant to reach them [m].
         reach_tolerance: every joint of q within this of the goal reports REACHED.
+        linear_reach_tolerance: the same for "linear" goals (the grasp approach
+            and lift), which must end on the grasp pose: 0.03 rad per arm joint
+            left the gripper 1.5-2 cm off it (static s0003).
         settle_time: after the trajectory's end, how long the robot may take to
             settle within `reach_tolerance` [s] ...
         settle_tolerance: ... after which a q within this looser tolerance still
@@ -92,6 +95,7 @@ class PlannerSystemConfig:
     floor_z: float = 0.03
     target_clearance: float = 0.10
     reach_tolerance: float = 0.03
+    linear_reach_tolerance: float = 0.012
     settle_time: float = 3.0
     settle_tolerance: float = 0.12
     max_replans: int = 8
@@ -152,13 +156,16 @@ class MotionSupervisor:
             return plan, MotionEvent.NONE
         error = np.abs(layout.wrap_configuration(q - np.asarray(goal.q_goal, float)))
         if t >= plan.trajectory.end_time:
-            if np.all(error <= cfg.reach_tolerance):
+            tolerance = cfg.linear_reach_tolerance if goal.motion == "linear" else cfg.reach_tolerance
+            if np.all(error <= tolerance):
                 return plan, MotionEvent.REACHED
             if t >= plan.trajectory.end_time + cfg.settle_time:
                 if np.all(error <= cfg.settle_tolerance):
                     return plan, MotionEvent.REACHED
-                _log.warning("motion t=%.2f: goal %d not reached %.1f s after the trajectory ended (max error %.3f)",
-                             t, goal.goal_id, cfg.settle_time, float(error.max()))
+                worst = int(np.argmax(error))
+                _log.warning("motion t=%.2f: goal %d not reached %.1f s after the trajectory ended (max error %.3f "
+                             "at %s)", t, goal.goal_id, cfg.settle_time, float(error[worst]),
+                             layout.WHOLE_BODY_JOINTS[worst])
                 return dc.replace(plan, trajectory=None, success=False, reason=FailureReason.TIMEOUT), MotionEvent.FAILED
         if goal.motion != "plan":
             return plan, MotionEvent.NONE

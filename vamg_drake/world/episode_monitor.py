@@ -6,8 +6,13 @@ the robot's contacts, the target's height and what the policy and the planner
 report, and decides the outcome. The statuses are the paper's categories:
 
 * ``success``: the target lifted >= `lift_height` and held `hold_time`;
-* ``collision``: a robot link other than the fingers touched something (the
-  palm may touch the target once the grasp has begun);
+* ``collision``: a robot link other than the fingers touched something
+  before the grasp was initiated (the paper: "any contact between the robot
+  body (excluding gripper fingers) and environment obstacles or the target
+  object before grasp initiation"). The grasp is initiated when the linear
+  approach from the pre-grasp pose begins; from then on the gripper (palm and
+  fingers) may touch the target and its support, since what it does to them
+  is judged by the lift. Other links, and any self-contact, still count;
 * ``grasp``: the policy finished its lift but the target was not held up
   within `grasp_verdict_time` (slipped, dropped, or never enclosed);
 * ``ik``, ``reachability``, ``perception``: the subgoal policy gave up for
@@ -119,6 +124,9 @@ class EpisodeOutcome:
         return self.status != RUNNING
 
 
+#: Policy phases (`PolicyReport.phase`) at and after grasp initiation: the
+#: linear approach from the pre-grasp pose, closing, lifting, done.
+GRASP_INITIATED_PHASES = ("grasp_approach", "grasp_close", "grasp_lift", "succeeded")
 #: Robot links allowed to touch anything (the fingers).
 FINGER_LINKS = ("l_gripper_finger_link", "r_gripper_finger_link")
 GRIPPER_LINKS = ("gripper_link",) + FINGER_LINKS
@@ -146,8 +154,8 @@ class EpisodeJudge:
                 continue
             if c.other_is_robot and (c.other in FINGER_LINKS):
                 continue
-            if grasp_started and c.other_is_target and c.robot_link in GRIPPER_LINKS:
-                continue  # the palm may touch the target once the grasp has begun
+            if grasp_started and not c.other_is_robot and c.robot_link in GRIPPER_LINKS:
+                continue  # after grasp initiation the palm's contacts are the grasp's business
             self.outcome = EpisodeOutcome(COLLISION, time, f"{c.robot_link} touched {c.other} ({c.depth * 1000:.1f} mm)")
             return self.outcome
         lift = target_height - self.target_rest_height
