@@ -183,6 +183,23 @@ def test_progress_is_monotone_on_a_self_crossing_path():
     assert ro.times[-1] > 0.9 * tr.duration  # no shortcut to the end
 
 
+def test_an_in_place_turn_with_position_jitter_is_one_turn_not_many_cusps():
+    """Drive 1 m, then turn 0.8 rad in place while the base position wobbles
+    by 0.2 mm (as planned paths do): the turn is no chain of cusps, and the
+    robot finishes it (seed 0: it stopped with 0.79 rad of the turn left)."""
+    s = np.linspace(0.0, 1.0, 34)
+    drive = np.stack([s, np.zeros_like(s), np.zeros_like(s)], axis=1)
+    a = np.linspace(0.0, -0.8, 40)[1:]
+    rng = np.random.default_rng(0)
+    turn = np.stack([1.0 + rng.normal(0, 2e-4, a.size), rng.normal(0, 2e-4, a.size), a], axis=1)
+    tr = time_parametrize(_whole_body(np.concatenate([drive, turn])))
+    core = _core()
+    assert core.set_trajectory(tr.times, tr.q, tr.q[0]) == ""
+    assert len(core._stops) == 1  # the final waypoint only
+    ro = rollout(core, tr.q[0], tr.end_time + 3.0)
+    assert abs(ro.final_q[2] - tr.q[-1, 2]) < 0.05
+
+
 def test_a_pause_in_the_path_does_not_stall():
     a = np.linspace(0.0, 1.0, 34)
     poses = np.stack([a, np.zeros_like(a), np.zeros_like(a)], axis=1)

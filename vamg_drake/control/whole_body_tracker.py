@@ -67,6 +67,8 @@ U_LIMITS = np.concatenate(
 )
 #: Forward displacements below this [m] count as no base motion (cusp detection).
 _MOTION_EPS = 1e-6
+#: A run of base motion in one direction shorter than this [m] is jitter (cusp detection).
+_MIN_RUN_TRAVEL = 0.005
 
 
 @dc.dataclass
@@ -281,14 +283,28 @@ def _resample(times: np.ndarray, q: np.ndarray, dt: float, max_samples: int) -> 
 
 def _direction_and_stops(qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(direction (N,), stops) per sample: +1 forward, -1 reverse, 0 no base
-    travel on the segment leaving it; stops: cusp sample indices, then N-1."""
+    travel on the segment leaving it; stops: cusp sample indices, then N-1.
+
+    A run of samples in one direction that travels less than
+    `_MIN_RUN_TRAVEL` in all is jitter, not travel (direction 0): an in-place
+    turn whose base position wobbles by 0.1 mm otherwise splits into dozens of
+    cusps, each to be reached within the cusp tolerances, and the robot
+    stopped short of the turn (seed 0: 0.79 rad of heading left after 3 s).
+    """
     n = qs.shape[0]
     direction = np.zeros(n, dtype=int)
     if n > 1:
         d = np.diff(qs[:, :2], axis=0)
         mid = 0.5 * (qs[:-1, 2] + qs[1:, 2])
         forward = d[:, 0] * np.cos(mid) + d[:, 1] * np.sin(mid)
-        direction[:-1] = np.where(forward > _MOTION_EPS, 1, np.where(forward < -_MOTION_EPS, -1, 0))
+        step = np.where(forward > _MOTION_EPS, 1, np.where(forward < -_MOTION_EPS, -1, 0))
+        start = 0
+        for k in range(1, n):  # runs of equal sign; short runs are jitter
+            if k == n - 1 or step[k] != step[start]:
+                if step[start] != 0 and np.sum(np.abs(forward[start:k])) < _MIN_RUN_TRAVEL:
+                    step[start:k] = 0
+                start = k
+        direction[:-1] = step
         direction[-1] = direction[-2]
     moving = np.flatnonzero(direction[:-1] != 0) if n > 1 else np.zeros(0, dtype=int)
     stops = []
