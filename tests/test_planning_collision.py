@@ -210,3 +210,24 @@ def test_drive_free_matches_is_free(room):
             np.testing.assert_array_equal(checker.drive_free(poses, arm), expected)
             verdicts.append(expected.mean())
     assert min(verdicts) == 0.0 and max(verdicts) > 0.3  # self-colliding arms and free drives both seen
+
+
+def test_base_pose_exact_check_matches_is_free(room):
+    """`base_pose_free_exact` (the torso + arm's spheres precomputed in the
+    base frame, moved rigidly) agrees with the full check."""
+    from vamg_drake.planning.collision import base_pose_free_exact
+
+    rng = np.random.default_rng(22)
+    checker = CollisionChecker.for_fetch(CollisionEnvironment.from_primitives(room))
+    arms = [np.array([0.167, 0.43, 1.214, -0.738, 1.461, -0.093, 1.597, -1.9])]
+    arms += list(rng.uniform(layout.SAMPLE_LOWER[3:], layout.SAMPLE_UPPER[3:], (4, 8)))
+    seen = []
+    for arm in arms:
+        data = checker.base_pose_check_data(arm)
+        poses = np.column_stack([rng.uniform(0.0, 6.0, 500), rng.uniform(0.0, 5.0, 500), rng.uniform(-8, 8, 500)])
+        got = np.array([base_pose_free_exact(x, y, th, data) for x, y, th in poses])
+        Q = np.concatenate([poses, np.repeat(arm[None], poses.shape[0], axis=0)], axis=1)
+        Q[:, 2] = layout.wrap_angle(Q[:, 2])
+        np.testing.assert_array_equal(got, checker.is_free(Q))
+        seen.append(got.mean())
+    assert min(seen) < 0.5 < max(seen)

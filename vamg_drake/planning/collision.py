@@ -861,43 +861,56 @@ def _batch_free(Q, head, parent, X_PJ, joint_type, axis, var_index,
 
 
 @numba.njit(cache=True)
-def _drive_free(poses, data, out):
-    """out[m] = configuration (poses[m] (x, y, theta), data[0][0, 3:]) is free:
-    the self-collision and joint-limit tests of the torso + arm once, then per
-    pose only the environment tests of the sphere centres carried rigidly by
-    the base (the base joints are planar: x, y, then yaw about z)."""
-    Q, T, C = data[0], data[1], data[2]
+def _held_spheres(data, C0):
+    """Fills C0 (S, 3) with the sphere centres in the base frame for the
+    torso + arm data[0][0, 3:] and returns whether that torso + arm is inside
+    its limits and free of self-collision (both independent of the base)."""
+    Q, T = data[0], data[1]
     sph_link, sph_c, q_lo, q_hi = data[12], data[13], data[17], data[18]
     Q[0, 0] = Q[0, 1] = Q[0, 2] = 0.0
-    ok = True
     for j in range(3, Q.shape[1]):
         if not (Q[0, j] >= q_lo[j] and Q[0, j] <= q_hi[j]):
-            ok = False
-    if ok:
-        _link_transforms(Q, 0, data[6], data[7], data[8], data[9], data[10], data[11], T)
-        for s in range(sph_link.shape[0]):
-            li = sph_link[s]
-            px, py, pz = sph_c[s, 0], sph_c[s, 1], sph_c[s, 2]
-            for a in range(3):
-                C[s, a] = T[li, a, 0] * px + T[li, a, 1] * py + T[li, a, 2] * pz + T[li, a, 3]
-        ok = _self_free(T, C, data)
-    if not ok:
+            return False
+    _link_transforms(Q, 0, data[6], data[7], data[8], data[9], data[10], data[11], T)
+    for s in range(sph_link.shape[0]):
+        li = sph_link[s]
+        px, py, pz = sph_c[s, 0], sph_c[s, 1], sph_c[s, 2]
+        for a in range(3):
+            C0[s, a] = T[li, a, 0] * px + T[li, a, 1] * py + T[li, a, 2] * pz + T[li, a, 3]
+    return _self_free(T, C0, data)
+
+
+@numba.njit(cache=True, inline="always")
+def _held_pose_free(x, y, th, data):
+    """Configuration (x, y, th, held torso + arm) free, from the tuple's
+    base-frame sphere centres data[49] (see `_held_spheres`): the base moves
+    them rigidly (planar joints: x, y, then yaw about z); only the
+    environment is tested."""
+    q_lo, q_hi = data[17], data[18]
+    if not (x >= q_lo[0] and x <= q_hi[0] and y >= q_lo[1] and y <= q_hi[1] and th >= q_lo[2]
+            and th <= q_hi[2]):
+        return False
+    C, C0 = data[2], data[49]
+    c = math.cos(th)
+    sn = math.sin(th)
+    for s in range(C0.shape[0]):
+        C[s, 0] = x + c * C0[s, 0] - sn * C0[s, 1]
+        C[s, 1] = y + sn * C0[s, 0] + c * C0[s, 1]
+        C[s, 2] = C0[s, 2]
+    return _env_free(C, data)
+
+
+@numba.njit(cache=True)
+def _drive_free(poses, data, out):
+    """out[m] = configuration (poses[m] (x, y, theta), held torso + arm) is
+    free, for a tuple of `CollisionChecker.base_pose_check_data` on a planar
+    base: self-collision and joint limits of the torso + arm were tested once
+    (data[50][0]); per pose only the environment."""
+    if not data[50][0]:
         out[:] = False
         return
-    C0 = C.copy()
     for m in range(poses.shape[0]):
-        x, y, th = poses[m, 0], poses[m, 1], poses[m, 2]
-        if not (x >= q_lo[0] and x <= q_hi[0] and y >= q_lo[1] and y <= q_hi[1] and th >= q_lo[2]
-                and th <= q_hi[2]):
-            out[m] = False
-            continue
-        c = math.cos(th)
-        sn = math.sin(th)
-        for s in range(C0.shape[0]):
-            C[s, 0] = x + c * C0[s, 0] - sn * C0[s, 1]
-            C[s, 1] = y + sn * C0[s, 0] + c * C0[s, 1]
-            C[s, 2] = C0[s, 2]
-        out[m] = _env_free(C, data)
+        out[m] = _held_pose_free(poses[m, 0], poses[m, 1], poses[m, 2], data)
 
 
 @numba.njit(cache=True)
@@ -924,10 +937,13 @@ def config_free_data(data):
 def base_pose_free_exact(x, y, theta, data):
     """Whole-body validity at base pose (x, y, theta) with the torso/arm of
     `CollisionChecker.base_pose_check_data` (a tuple it made; numba-callable)."""
+    th = (theta + math.pi) % (2.0 * math.pi) - math.pi
+    if data[50][1]:  # planar base: the held torso + arm's spheres moved rigidly
+        return data[50][0] and _held_pose_free(x, y, th, data)
     Q = data[0]
     Q[0, 0] = x
     Q[0, 1] = y
-    Q[0, 2] = (theta + math.pi) % (2.0 * math.pi) - math.pi
+    Q[0, 2] = th
     return config_free_data(data)
 
 
@@ -1275,6 +1291,8 @@ class CollisionChecker:
         self._group_self_tests()
         self._self_cull = self._self_culling()
         self.lever = self._joint_levers()
+        self._planar = None
+        self._planar_base()
         self.set_environment(env)
 
     @staticmethod
@@ -1367,15 +1385,9 @@ class CollisionChecker:
             lb_r[li] = float(np.max(np.linalg.norm(c - lb_c[li], axis=1) + self.sph_rs[m])) + 1e-9
 
         def ends(keys: np.ndarray) -> np.ndarray:
-            out = np.empty(keys.shape[0], np.int64)
-            k = 0
-            while k < keys.shape[0]:
-                e = k
-                while e < keys.shape[0] and np.array_equal(keys[e], keys[k]):
-                    e += 1
-                out[k:e] = e
-                k = e
-            return out
+            change = np.any(keys[1:] != keys[:-1], axis=1)
+            group = np.concatenate([[0], np.cumsum(change)])
+            return np.append(np.flatnonzero(change) + 1, keys.shape[0]).astype(np.int64)[group]
 
         pair_end = ends(L[self.pairs]) if self.pairs.shape[0] else np.zeros(0, np.int64)
         bp_prim, bp_sphere = self._body[4], self._body[5]
@@ -1395,7 +1407,9 @@ class CollisionChecker:
     def base_pose_check_data(self, torso_arm: np.ndarray) -> tuple:
         """The arguments of `base_pose_free_exact` for the torso + arm (8,)
         held fixed, over the current environment (scratch arrays included:
-        one user at a time)."""
+        one user at a time). It ends with the torso + arm's sphere centres in
+        the base frame and (limits and self-collision free, planar base):
+        the torso + arm must not be changed afterwards for those checks."""
         torso_arm = np.asarray(torso_arm, dtype=float).reshape(layout.NQ - 3)
         Q = np.zeros((1, layout.NQ))
         Q[0, 3:] = torso_arm
@@ -1406,7 +1420,13 @@ class CollisionChecker:
         env_aabb = np.empty((e.box_p.shape[0] + e.cyl_p.shape[0], 6))
         _env_aabbs(e.box_p, e.box_R, e.box_half, e.cyl_p, e.cyl_R, e.cyl_radius, e.cyl_half_length, env_aabb)
         near = np.empty(env_aabb.shape[0], dtype=np.int64)
-        return (Q, T, C, PW, env_aabb, near) + tuple(self._args()) + (np.empty((self.tree.parent.shape[0], 3)),)
+        data = (Q, T, C, PW, env_aabb, near) + tuple(self._args()) + (np.empty((self.tree.parent.shape[0], 3)),)
+        C0 = np.empty_like(C)
+        flags = np.array([False, self._planar_base()])
+        data += (C0, flags)
+        flags[0] = _held_spheres(data, C0)
+        Q[0, 3:] = torso_arm
+        return data
 
     def is_free(self, Q: np.ndarray) -> np.ndarray:
         """Validity (B,) of configurations Q (B, 11) (no early exit)."""
@@ -1432,7 +1452,7 @@ class CollisionChecker:
     def _planar_base(self) -> bool:
         """Whether the base joints move every sphere rigidly in the plane:
         c(x, y, theta) = (x, y) + R_z(theta) c(0, 0, 0) (checked once)."""
-        if getattr(self, "_planar", None) is None:
+        if self._planar is None:
             rng = np.random.default_rng(0)
             Q = rng.uniform(layout.SAMPLE_LOWER, layout.SAMPLE_UPPER, (4, layout.NQ))
             Q0 = Q.copy()

@@ -143,30 +143,30 @@ class HybridAStarConfig:
 
 
 @numba.njit(cache=True)
-def _poses_free(poses, layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact, exact, exact_zone,
-                slack):
-    """True when every pose (M, 3) is free (see the module docstring).
+def _poses_2d(poses, layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact, has_exact, slack, need):
+    """The 2D part of `_poses_free`: False when some pose (M, 3) is blocked;
+    else True, with need[k] = 0 (pose k free), 1 (to check exactly with the
+    travel arm), 2 + e (exactly with zone e's own arm). Without `has_exact`
+    nothing is left to an exact check (zone poses are free then).
 
-    Poses within exempt_r of exempt point e (E, 2) are checked with the
-    `exact` whole-body check (travel arm) where exempt_exact[e] == 1, with
-    exact_zone[e] (the start's/goal's own arm) where it is 2; `exact` may be
-    None (no zones then).
-    """
+    (The exact checks' data tuples are not passed here: a compiled call
+    costs ~25 ns per array in a tuple argument, 50 per tuple.)"""
     nx = layers.shape[1]
     ny = layers.shape[2]
     for k in range(poses.shape[0]):
         x, y, th = poses[k, 0], poses[k, 1], poses[k, 2]
+        need[k] = 0
         zone = -1
         for e in range(exempt.shape[0]):
             if (x - exempt[e, 0]) ** 2 + (y - exempt[e, 1]) ** 2 < exempt_r * exempt_r:
                 zone = e
                 break
         if zone >= 0:
-            if exact is not None:
-                if exempt_exact[zone] == 1 and not base_pose_free_exact(x, y, th, exact):
-                    return False
-                if exempt_exact[zone] == 2 and not base_pose_free_exact(x, y, th, exact_zone[zone]):
-                    return False
+            if has_exact:
+                if exempt_exact[zone] == 1:
+                    need[k] = 1
+                elif exempt_exact[zone] == 2:
+                    need[k] = 2 + zone
             continue
         c = math.cos(th)
         s = math.sin(th)
@@ -182,11 +182,49 @@ def _poses_free(poses, layers, origin, h, margin, discs, band, exempt, exempt_r,
             continue
         # Blocked in 2D by less than `slack`: the discs overestimate the
         # robot, let the exact check decide.
-        if exact is not None and worst < slack:
-            if base_pose_free_exact(x, y, th, exact):
-                continue
+        if has_exact and worst < slack:
+            need[k] = 1
+            continue
         return False
     return True
+
+
+@numba.njit(cache=True)
+def _poses_exact(poses, need, exact, exact_zone):
+    """The exact checks `_poses_2d` left (need[k] > 0)."""
+    for k in range(poses.shape[0]):
+        if need[k] == 0:
+            continue
+        x, y, th = poses[k, 0], poses[k, 1], poses[k, 2]
+        if need[k] == 1:
+            if not base_pose_free_exact(x, y, th, exact):
+                return False
+        elif need[k] == 2:
+            if not base_pose_free_exact(x, y, th, exact_zone[0]):
+                return False
+        elif not base_pose_free_exact(x, y, th, exact_zone[1]):
+            return False
+    return True
+
+
+@numba.njit(cache=True)
+def _poses_free(poses, layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact, exact, exact_zone,
+                slack):
+    """True when every pose (M, 3) is free (see the module docstring).
+
+    Poses within exempt_r of exempt point e (E, 2) are checked with the
+    `exact` whole-body check (travel arm) where exempt_exact[e] == 1, with
+    exact_zone[e] (the start's/goal's own arm) where it is 2; `exact` may be
+    None (no zones then). Inside the search, `_poses_2d` first and
+    `_poses_exact` only where needed.
+    """
+    need = np.empty(poses.shape[0], np.int64)
+    if not _poses_2d(poses, layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact,
+                     exact is not None, slack, need):
+        return False
+    if exact is None:
+        return True
+    return _poses_exact(poses, need, exact, exact_zone)
 
 
 @numba.njit(cache=True)
@@ -258,6 +296,14 @@ def _prim_poses(x, y, th, kappa, length, dth, n, out):
 
 
 @numba.njit(cache=True)
+def _any(need, m):
+    for k in range(m):
+        if need[k] != 0:
+            return True
+    return False
+
+
+@numba.njit(cache=True)
 def _search(start, goal, layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact, exact, exact_zone,
             slack,
             h2d, h2d_factor, h2d_slack, prims, prim_n, radius, check_step, theta_bins, xy_res, analytic_every, max_exp,
@@ -285,6 +331,8 @@ def _search(start, goal, layers, origin, h, margin, discs, band, exempt, exempt_
     g_of[0] = 0.0
     n_nodes = 1
     heap = [(0.0, 0)]
+    has_exact = exact is not None
+    need = np.empty(256, np.int64)
     buf = np.empty((64, 3))
     diag = math.sqrt(2.0)
     expansions = 0
@@ -311,7 +359,12 @@ def _search(start, goal, layers, origin, h, margin, discs, band, exempt, exempt_
             for k in range(lengths.shape[0]):
                 backward -= radius * min(lengths[k], 0.0)
             path = rs.sample_path(poses[idx], types, lengths, radius, check_step)
-            if backward <= max_reverse and _poses_free(path, layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact, exact, exact_zone, slack):
+            if path.shape[0] > need.shape[0]:
+                need = np.empty(2 * path.shape[0], np.int64)
+            if backward <= max_reverse and _poses_2d(
+                    path, layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact, has_exact, slack,
+                    need) and (not has_exact or not _any(need, path.shape[0])
+                               or _poses_exact(path, need, exact, exact_zone)):
                 return 1, idx, poses[:n_nodes], parents[:n_nodes], prim_of[:n_nodes], types, lengths, expansions
         for p in range(prims.shape[0]):
             m = _prim_poses(x, y, th, prims[p, 0], prims[p, 1], prims[p, 2], prim_n[p], buf)
@@ -321,8 +374,10 @@ def _search(start, goal, layers, origin, h, margin, discs, band, exempt, exempt_
             at = int(math.floor((_wrap(qt) + math.pi) / (2.0 * math.pi) * theta_bins)) % theta_bins
             if ai < 0 or aj < 0 or ai >= gx or aj >= gy or closed[ai, aj, at]:
                 continue
-            if not _poses_free(buf[:m], layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact,
-                               exact, exact_zone, slack):
+            if not _poses_2d(buf[:m], layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact,
+                             has_exact, slack, need):
+                continue
+            if has_exact and _any(need, m) and not _poses_exact(buf[:m], need, exact, exact_zone):
                 continue
             # heuristic: obstacle-aware 2D distance on the coarse grid (minus
             # its grid slack) or Euclid
