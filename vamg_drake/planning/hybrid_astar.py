@@ -257,16 +257,35 @@ def _dijkstra_2d(free, gi, gj, h):
 
 
 @numba.njit(cache=True)
+def _footprint_free(layers, margin, thr, band, out):
+    """out &= (layers[band[k]] - margin > thr[k] for every disc k)."""
+    for i in range(out.shape[0]):
+        for j in range(out.shape[1]):
+            for k in range(thr.shape[0]):
+                if not layers[band[k], i, j] - margin > thr[k]:
+                    out[i, j] = False
+                    break
+    return out
+
+
+@numba.njit(cache=True)
 def _coarse_free(free, factor):
     """A grid `factor` times coarser: a coarse cell is free when any of its cells is."""
     nx, ny = free.shape
     cx = (nx + factor - 1) // factor
     cy = (ny + factor - 1) // factor
     out = np.zeros((cx, cy), dtype=np.bool_)
-    for i in range(nx):
-        for j in range(ny):
-            if free[i, j]:
-                out[i // factor, j // factor] = True
+    for a in range(cx):
+        for b in range(cy):
+            found = False
+            for i in range(a * factor, min((a + 1) * factor, nx)):
+                for j in range(b * factor, min((b + 1) * factor, ny)):
+                    if free[i, j]:
+                        found = True
+                        break
+                if found:
+                    break
+            out[a, b] = found
     return out
 
 
@@ -461,6 +480,7 @@ class HybridAStar:
         self._exempt_exact = np.zeros(0, np.bool_)
         self._exempt_r = 0.0
         self._free = None
+        self._coarse = None
 
     def poses_free(self, poses: np.ndarray) -> bool:
         cm = self.costmap
@@ -482,11 +502,8 @@ class HybridAStar:
     def path_cost(self, poses: np.ndarray) -> float:
         """Length of a sampled base path [m], backward steps counted
         `reverse_penalty` times, plus 0.3 m per radian turned."""
-        d = np.diff(poses[:, :2], axis=0)
-        step = np.hypot(d[:, 0], d[:, 1])
-        backward = d[:, 0] * np.cos(poses[:-1, 2]) + d[:, 1] * np.sin(poses[:-1, 2]) < 0.0
-        weight = np.where(backward, self.config.reverse_penalty, 1.0)
-        return float(np.sum(step * weight)) + 0.3 * float(np.sum(np.abs(np.diff(poses[:, 2]))))
+        poses = np.ascontiguousarray(poses, float)
+        return float(_path_cost(poses, 0, poses.shape[0] - 1, self.config.reverse_penalty))
 
     def _make_primitives(self):
         """Rows (kappa, signed length, in-place dtheta, cost [s]) and check counts."""
@@ -598,10 +615,8 @@ class HybridAStar:
         every disc centre lies within |offset| + h of the cell centre)."""
         if self._free is None:
             cm = self.costmap
-            free = np.ones(cm.shape, bool)
-            for (x, y, r), b in zip(self._discs, self._band):
-                free &= cm.free_mask(r - math.hypot(x, y) - cm.resolution - self._slack, int(b))
-            self._free = free
+            thr = np.array([r - math.hypot(x, y) - cm.resolution - self._slack for x, y, r in self._discs])
+            self._free = _footprint_free(self._layers, cm.margin, thr, self._band, np.ones(cm.shape, bool))
         return self._free
 
     def _heuristic_grid(self, free: np.ndarray, goal: np.ndarray) -> tuple[np.ndarray, int, float]:
@@ -614,28 +629,39 @@ class HybridAStar:
         (cell centres sit up to `slack` from their coarse cell's centre)."""
         cm = self.costmap
         factor = max(int(round(self.config.heuristic_cell / cm.resolution)), 1)
-        coarse = _coarse_free(free, factor)
+        if free is self._free:  # no start/goal zones: the same for every goal
+            if self._coarse is None or self._coarse[0] != factor:
+                self._coarse = (factor, _coarse_free(free, factor))
+            coarse = self._coarse[1]
+        else:
+            coarse = _coarse_free(free, factor)
         gi, gj = cm.cell(goal)
         hc = factor * cm.resolution
         d = _dijkstra_2d(coarse, gi // factor, gj // factor, hc)
         return d, factor, 2.0 * math.sqrt(2.0) * 0.5 * (factor - 1) * cm.resolution + math.sqrt(2.0) * hc
 
     def shortcut(self, poses: np.ndarray, rng: np.random.Generator, iterations: int = 20) -> np.ndarray:
-        """Randomized shortcutting of a base path with Reeds-Shepp connections."""
+        """Randomized shortcutting of a base path with Reeds-Shepp connections
+        (the random pairs of poses drawn up front: one generator call)."""
         R = self.config.turning_radius
-        for _ in range(iterations):
+        w = self.config.reverse_penalty
+        poses = np.ascontiguousarray(poses, float)
+        u = rng.random((iterations, 2))
+        for it in range(iterations):
             n = poses.shape[0]
             if n < 4:
                 break
-            i, j = sorted(rng.choice(n, 2, replace=False))
+            # Two distinct indices, uniformly (as rng.choice(n, 2, replace=False)).
+            i, j = int(u[it, 0] * n), int(u[it, 1] * (n - 1))
+            j += j >= i
+            i, j = min(i, j), max(i, j)
             if j - i < 3:
                 continue
             a, b = poses[i], poses[j]
-            types, lengths, total = rs.shortest_path(a, b, R, self.config.reverse_penalty)
-            old = self.path_cost(poses[i:j + 1])
+            types, lengths, total = rs.shortest_path(a, b, R, w)
             seg = rs.sample_path(a, types, lengths, R, self.config.check_step)
-            new = self.path_cost(seg)
-            if new >= old - 1e-6 or not self.poses_free(seg):
+            if (_path_cost(seg, 0, seg.shape[0] - 1, w) >= _path_cost(poses, i, j, w) - 1e-6
+                    or not self.poses_free(seg)):
                 continue
             # keep theta continuous: RS starts at a's unwrapped theta; shift the rest
             end_shift = seg[-1, 2] - b[2]
@@ -644,3 +670,17 @@ class HybridAStar:
             seg[-1, 2] = b[2] + end_shift
             poses = np.concatenate([poses[:i], seg, rest])
         return poses
+
+
+@numba.njit(cache=True)
+def _path_cost(poses, i, j, reverse_weight):
+    """`HybridAStar.path_cost` of poses[i..j]."""
+    cost = 0.0
+    for k in range(i, j):
+        dx = poses[k + 1, 0] - poses[k, 0]
+        dy = poses[k + 1, 1] - poses[k, 1]
+        step = math.sqrt(dx * dx + dy * dy)
+        if dx * math.cos(poses[k, 2]) + dy * math.sin(poses[k, 2]) < 0.0:
+            step *= reverse_weight
+        cost += step + 0.3 * abs(poses[k + 1, 2] - poses[k, 2])
+    return cost
