@@ -18,10 +18,12 @@ One attempt:
      unfold over the last part (or before approaching holding the goal
      arm), along the straight joint-space line or the arm roadmap's
      self-collision-free path to the travel pose (`ArmRoadmap`), no search;
-     (c) RRT-Connect over (progress along the base path, torso + arm);
-     (d) as (b) with fixed-base searches at the start placement and at or
-     before the goal (the roadmap searched lazily, then RRT-Connect);
-     (e) fold/unfold with fixed-base searches for other carry poses.
+     (c) RRT-Connect over (progress along the base path, torso + arm), for
+     its first `along_path_first_iterations`; (d) as (b) with fixed-base
+     searches at the start placement and at or before the goal (the
+     roadmap searched lazily, then RRT-Connect); (c) resumed up to its
+     iteration cap; (e) fold/unfold with fixed-base searches for other
+     carry poses.
   3. Refinement of the fixed-base arm pieces: randomized shortcutting and
      B-spline smoothing (kept only where valid, after its own dense check);
      the checked pieces joined (they must meet exactly) and re-interpolated
@@ -65,7 +67,7 @@ from vamg_drake.planning.base_costmap import base_costmap
 from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment, densify
 from vamg_drake.planning.hybrid_astar import Footprint2D, HybridAStar, HybridAStarConfig
 from vamg_drake.planning.trajectory import TimedTrajectory
-from vamg_drake.planning.whole_body_rrt import KernelRRTConfig, WholeBodySearchSpace
+from vamg_drake.planning.whole_body_rrt import KernelRRTConfig, RRTConnectSearch, WholeBodySearchSpace
 from vamg_drake.robot import layout
 
 
@@ -100,6 +102,9 @@ class PlannerConfig:
         bspline_samples: samples of the smoothed fixed-base arm paths.
         rrt_step: RRT-Connect extension step (max-norm) [rad].
         rrt_max_iterations: RRT-Connect iteration limit per arm motion.
+        along_path_first_iterations: iterations of the along-path search (c)
+            before the fixed-base searches (d) are tried; it resumes after
+            them up to `rrt_max_iterations`.
         placement_fractions: where along the base path (fraction of its
             length) the arm may start unfolding; 1.0 = at the goal placement.
         fold_fractions: fractions of the base path over which the arm may fold
@@ -136,6 +141,7 @@ class PlannerConfig:
     bspline_samples: int = 25
     rrt_step: float = 0.6
     rrt_max_iterations: int = 400
+    along_path_first_iterations: int = 128
     placement_fractions: list[float] = dataclasses.field(default_factory=lambda: [0.5, 0.7, 0.85, 1.0])
     fold_fractions: list[float] = dataclasses.field(default_factory=lambda: [0.15, 0.3, 0.0])
     hybrid_astar_max_expansions: int = 8000
@@ -562,17 +568,27 @@ class WholeBodyPlanner:
         if path is not None:
             timings["arm"] += 1e3 * (time.perf_counter() - ta)
             return self._refine(path, timings, rng, deadline), "", ""
-        # (c) RRT-Connect over (progress along the base path, torso + arm).
-        path = self._along_base_path(poses, qs[3:], qg[3:], rng, deadline)
+        # (c) RRT-Connect over (progress along the base path, torso + arm),
+        # first for `along_path_first_iterations` (it usually connects within
+        # a few dozen iterations; the hard problems hit the cap at ~70 us per
+        # iteration)...
+        along = {}
+        path = self._along_base_path(poses, qs[3:], qg[3:], rng, deadline, along,
+                                     self.config.along_path_first_iterations)
         if path is not None:
             timings["arm"] += 1e3 * (time.perf_counter() - ta)
             return self._refine([path], timings, rng, deadline), "", ""
-        # (d) the same with fixed-base arm searches (lazy roadmap, then
+        # (d) the same as (b) with fixed-base arm searches (lazy roadmap, then
         # RRT-Connect) at the start placement and at or before the goal.
         path = self._via_carry(poses, qs, qg, travel, rng, deadline)
         if path is not None:
             timings["arm"] += 1e3 * (time.perf_counter() - ta)
             return self._refine(path, timings, rng, deadline), "", ""
+        # ... (c) resumed up to its iteration cap.
+        path = self._along_base_path(poses, qs[3:], qg[3:], rng, deadline, along)
+        if path is not None:
+            timings["arm"] += 1e3 * (time.perf_counter() - ta)
+            return self._refine([path], timings, rng, deadline), "", ""
         # (e) fold into another carry pose, drive, unfold, with fixed-base
         # arm searches at the start/goal placements: the goal arm (unfold at
         # the start), the start arm (unfold at the goal). Roll joints are
@@ -775,36 +791,46 @@ class WholeBodyPlanner:
         return np.concatenate([poses, arm], axis=1)
 
     def _along_base_path(self, poses: np.ndarray, arm_a: np.ndarray, arm_b: np.ndarray, rng,
-                         deadline) -> np.ndarray | None:
+                         deadline, search: dict, iterations: int | None = None) -> np.ndarray | None:
         """Whole-body states (N, 11) that follow the base path `poses` while
         the torso/arm moves from arm_a to arm_b, or None.
 
         RRT-Connect over x = (u, torso + arm) where u is the base's progress
         along the path in seconds of travel at the tracker's speed limits (it
         may go back: the base then reverses along its own curve); see
-        `WholeBodySearchSpace.along_path`.
+        `WholeBodySearchSpace.along_path`. The search runs `iterations` more
+        iterations (None: up to the cap) and is kept in `search` (a dict, empty
+        at first) so that a later call resumes it.
         """
-        space = WholeBodySearchSpace.along_path(self.checker, poses)
-        total = space.duration
-        if total <= 0.0:
+        if "rrt" not in search:
+            space = WholeBodySearchSpace.along_path(self.checker, poses)
+            total = space.duration
+            if total <= 0.0:
+                search["rrt"] = None
+                return None
+            lo = np.concatenate([[0.0], layout.SAMPLE_LOWER[3:]])
+            hi = np.concatenate([[total], layout.SAMPLE_UPPER[3:]])
+            c = np.concatenate([[False], layout.IS_CONTINUOUS[3:]])
+            mid = 0.5 * np.concatenate([[0.0], arm_a + arm_b])
+            lo = np.where(c, mid - np.pi, lo)
+            hi = np.where(c, mid + np.pi, hi)
+            w = np.concatenate([[1.0, 5.0], np.ones(7)])  # base seconds; torso metres weigh more
+            xa = np.concatenate([[0.0], arm_a])
+            xb = np.concatenate([[total], arm_b])
+            search["rrt"] = RRTConnectSearch(space, xa, xb, lo, hi, w, rng, self._rrt_config())
+        rrt = search["rrt"]
+        if rrt is None:
             return None
-        lo = np.concatenate([[0.0], layout.SAMPLE_LOWER[3:]])
-        hi = np.concatenate([[total], layout.SAMPLE_UPPER[3:]])
-        c = np.concatenate([[False], layout.IS_CONTINUOUS[3:]])
-        mid = 0.5 * np.concatenate([[0.0], arm_a + arm_b])
-        lo = np.where(c, mid - np.pi, lo)
-        hi = np.where(c, mid + np.pi, hi)
-        w = np.concatenate([[1.0, 5.0], np.ones(7)])  # base seconds; torso metres weigh more
-        xa = np.concatenate([[0.0], arm_a])
-        xb = np.concatenate([[total], arm_b])
-        path, why = space.rrt_connect(xa, xb, lo, hi, w, rng, self._rrt_config(), deadline)
+        path, why = rrt.run(iterations, deadline)
         if path is None:
             if why == "timeout":
                 raise _Timeout()
             return None
+        space = rrt.space
         if path.shape[0] > 2:
             path = smoothing.shortcut(path, space.motion_free, rng, self.config.along_path_shortcut_iterations)
         out = [space.states(path[k], path[k + 1])[(1 if k else 0):] for k in range(path.shape[0] - 1)]
+        search["rrt"] = None  # used
         return np.concatenate(out)
 
     def _rrt_config(self) -> KernelRRTConfig:
