@@ -102,14 +102,14 @@ def _primitive_clearance_2d(layers, origin, h, band_lo, band_hi, box_p, box_R, b
 
 def _primitive_xy_box(env: CollisionEnvironment) -> tuple[np.ndarray, np.ndarray] | None:
     lo, hi = [], []
-    for p, R, half in zip(env.box_p, env.box_R, env.box_half):
-        e = np.abs(R) @ half
-        lo.append(p - e)
-        hi.append(p + e)
-    for p, R, r, hl in zip(env.cyl_p, env.cyl_R, env.cyl_radius, env.cyl_half_length):
-        e = np.abs(R[:, 2]) * hl + r
-        lo.append(p - e)
-        hi.append(p + e)
+    if env.box_p.shape[0]:
+        e = np.einsum("kij,kj->ki", np.abs(env.box_R), env.box_half)
+        lo.append((env.box_p - e).min(axis=0))
+        hi.append((env.box_p + e).max(axis=0))
+    if env.cyl_p.shape[0]:
+        e = np.abs(env.cyl_R[:, :, 2]) * env.cyl_half_length[:, None] + env.cyl_radius[:, None]
+        lo.append((env.cyl_p - e).min(axis=0))
+        hi.append((env.cyl_p + e).max(axis=0))
     if not lo:
         return None
     return np.min(lo, axis=0)[:2], np.max(hi, axis=0)[:2]

@@ -1289,7 +1289,8 @@ class CollisionChecker:
             self._body = (link, kind, X, half, np.ascontiguousarray(bp_prim[keep_body]),
                           np.ascontiguousarray(bp_sphere[keep_body]))
         self._group_self_tests()
-        self._self_cull = self._self_culling()
+        self._self_cull = self._self_culling(self.sph_rs)
+        self._self_cull_bare = self._self_culling(self.base_radius)  # for `unpadded`
         self.lever = self._joint_levers()
         self._planar = None
         self._planar_base()
@@ -1351,7 +1352,7 @@ class CollisionChecker:
         other.padding = self.config.extra_padding
         other.sph_r = self.base_radius + other.padding
         other.sph_rs = self.base_radius.copy()
-        other._self_cull = other._self_culling()
+        other._self_cull = self._self_cull_bare
         return other
 
     def _group_self_tests(self) -> None:
@@ -1367,7 +1368,7 @@ class CollisionChecker:
             self._body = (link, kind, X, half, np.ascontiguousarray(bp_prim[order]),
                           np.ascontiguousarray(bp_sphere[order]))
 
-    def _self_culling(self) -> tuple:
+    def _self_culling(self, sph_rs: np.ndarray) -> tuple:
         """(lb_c (L, 3), lb_r (L,), pair_end (P,), bp_end (B,)):
         per link a bounding sphere (link frame) of its spheres at their
         self-collision radii `sph_rs` (-1: no spheres), and for every test the
@@ -1382,7 +1383,7 @@ class CollisionChecker:
             c = self.sph_c[m]
             lo, hi = c.min(axis=0), c.max(axis=0)
             lb_c[li] = 0.5 * (lo + hi)
-            lb_r[li] = float(np.max(np.linalg.norm(c - lb_c[li], axis=1) + self.sph_rs[m])) + 1e-9
+            lb_r[li] = float(np.max(np.linalg.norm(c - lb_c[li], axis=1) + sph_rs[m])) + 1e-9
 
         def ends(keys: np.ndarray) -> np.ndarray:
             change = np.any(keys[1:] != keys[:-1], axis=1)
@@ -1543,14 +1544,31 @@ def densify(path: np.ndarray, checker: CollisionChecker, resolution: float | Non
     if path.shape[0] < 2:
         return path.copy()
     res = checker.config.motion_resolution if resolution is None else resolution
-    d = checker.sphere_displacement_bound(np.diff(path, axis=0))
-    counts = np.maximum(np.ceil(d / res).astype(np.int64), 1)
-    # Segment index and fraction of every output state after the first.
-    seg = np.repeat(np.arange(counts.shape[0]), counts)
-    ends = np.cumsum(counts)
-    k = np.arange(1, ends[-1] + 1) - np.repeat(ends - counts, counts)
-    frac = (k / np.repeat(counts, counts))[:, None]
-    out = np.empty((ends[-1] + 1, path.shape[1]))
+    return _densify(np.ascontiguousarray(path), np.ascontiguousarray(checker.lever, dtype=float), float(res))
+
+
+@numba.njit(cache=True)
+def _densify(path, lever, res):
+    """`densify`: per segment max(ceil(bound / res), 1) steps, where bound is
+    `CollisionChecker.sphere_displacement_bound` (planar x, y norm plus the
+    levers of the other coordinates)."""
+    n, dim = path.shape
+    counts = np.empty(n - 1, np.int64)
+    total = 0
+    for k in range(n - 1):
+        d = math.hypot(path[k + 1, 0] - path[k, 0], path[k + 1, 1] - path[k, 1])
+        for j in range(2, dim):
+            d += abs(path[k + 1, j] - path[k, j]) * lever[j]
+        counts[k] = max(int(math.ceil(d / res)), 1)
+        total += counts[k]
+    out = np.empty((total + 1, dim))
     out[0] = path[0]
-    out[1:] = path[seg] + frac * (path[seg + 1] - path[seg])
+    m = 1
+    for k in range(n - 1):
+        c = counts[k]
+        for i in range(1, c + 1):
+            f = i / c
+            for a in range(dim):
+                out[m, a] = path[k, a] + f * (path[k + 1, a] - path[k, a])
+            m += 1
     return out
