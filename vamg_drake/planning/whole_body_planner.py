@@ -634,8 +634,10 @@ class WholeBodyPlanner:
         Q = self._synchronized(poses, qs[3:], qg[3:])
         # (the arm's straight line alone is checked for self-collision first:
         # short, and independent of the base)
-        if (self._arm_roadmap().self_free(np.stack([qs[3:], qg[3:]]))
-                and checker.first_collision(densify(Q, checker)) < 0):
+        # (No separate self-collision test of the arm's line first: the
+        # coarse-to-fine check of the whole path finds such a collision
+        # within a few states, and a free line would pay it twice.)
+        if checker.first_collision(densify(Q, checker)) < 0:
             timings["arm"] += 1e3 * (time.perf_counter() - ta)
             return self._refine([Q], timings, rng, deadline), "", ""
         # (b) fold into the travel pose while driving, unfold while driving
