@@ -488,6 +488,11 @@ class HybridAStar:
                                 cm.margin, self._discs, self._band, self._exempt, self._exempt_r,
                                 self._exempt_exact, self.exact, self._exact_zone, self._slack))
 
+    def warm_up(self) -> None:
+        """Runs the compiled exact pose checks once (see `WholeBodyPlanner.warm_up`)."""
+        if self.exact is not None:
+            _poses_exact(np.zeros((1, 3)), np.ones(1, np.int64), self.exact, self._exact_zone)
+
     def reeds_shepp(self, a: np.ndarray, b: np.ndarray, max_reverse: float = np.inf) -> np.ndarray | None:
         """Sampled RS path a->b (M, 3) (backward segments weighted by
         `reverse_penalty`) if it backs up at most `max_reverse` [m] and its

@@ -62,7 +62,7 @@ import time
 import numba
 import numpy as np
 
-from vamg_drake.planning import smoothing
+from vamg_drake.planning import smoothing, whole_body_rrt
 from vamg_drake.planning.arm_roadmap import ArmRoadmap
 from vamg_drake.planning.base_costmap import base_costmap
 from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment, densify
@@ -397,6 +397,16 @@ class WholeBodyPlanner:
             cm = base_costmap(self.checker.env, self.bands, self.config.costmap_resolution, cap, cover)
             self._hybrid = HybridAStar(cm, self.footprint, search, checker=self.checker, travel_arm=self.travel)
         return self._hybrid
+
+    def warm_up(self) -> None:
+        """Loads (or compiles) the compiled kernels of every planning stage now:
+        numba does so on first use, which inside a plan costs tens of ms even
+        from its cache (and seconds to compile). A plan on an easy problem
+        does not reach the searches of the later stages."""
+        whole_body_rrt.warm_up(WholeBodySearchSpace.fixed_base(self.checker, np.zeros(3)))
+        poses = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.2]])
+        whole_body_rrt.warm_up(WholeBodySearchSpace.along_path(self.checker, poses))
+        self._base_planner(poses[0], poses[1]).warm_up()
 
     # -- validation ------------------------------------------------------------
 

@@ -334,6 +334,20 @@ class RRTConnectSearch:
         return None, "iteration limit"
 
 
+def warm_up(space: WholeBodySearchSpace) -> None:
+    """Runs the compiled RRT-Connect kernel for two iterations on `space` (numba
+    compiles it, or loads it from its cache, on first use: tens of ms even
+    when cached), without any search result."""
+    d = space.lever.shape[0]
+    x = np.zeros(d)
+    nodes = np.zeros((2, 4, d))
+    parent = np.full((2, 4), -1, dtype=np.int64)
+    count = np.ones(2, dtype=np.int64)
+    _rrt_connect_kernel(nodes, parent, count, 0, 2, np.full((2, d + 1), 0.5), x, x + 1e-3, np.ones(d), 0.1, 0.0,
+                        space.along, space.base, space.poses, space.cum, space.dt, space.lever, space.res,
+                        space.data, np.zeros(3, dtype=np.int64))
+
+
 def _to_root(nodes: np.ndarray, parent: np.ndarray, i: int) -> np.ndarray:
     out = []
     while i >= 0:
