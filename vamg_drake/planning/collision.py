@@ -540,10 +540,13 @@ def primitive_distances(points: np.ndarray, env: CollisionEnvironment) -> np.nda
 
 @numba.njit(cache=True)
 def _link_transforms(Q, b, head, parent, X_PJ, joint_type, axis, var_index, T):
-    """T[i] (3x4) = X_W(link i) for configuration q (11,) and head (2,)."""
+    """T[i] (3x4) = X_W(link i) for configuration q (11,) and head (2,);
+    links with joint_type -1 are skipped (see `CollisionChecker._fk_joint_type`)."""
     L = parent.shape[0]
     nq = Q.shape[1]
     for i in range(L):
+        if joint_type[i] < 0:
+            continue
         k = var_index[i]
         # joint motion M (rotation R, translation t)
         r00, r01, r02, r10, r11, r12, r20, r21, r22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
@@ -584,9 +587,14 @@ def _link_transforms(Q, b, head, parent, X_PJ, joint_type, axis, var_index, T):
                 a1 = w0 * X_PJ[i, 0, 1] + w1 * X_PJ[i, 1, 1] + w2 * X_PJ[i, 2, 1]
                 a2 = w0 * X_PJ[i, 0, 2] + w1 * X_PJ[i, 1, 2] + w2 * X_PJ[i, 2, 2]
                 a3 = w0 * X_PJ[i, 0, 3] + w1 * X_PJ[i, 1, 3] + w2 * X_PJ[i, 2, 3] + w3
-            T[i, a, 0] = a0 * r00 + a1 * r10 + a2 * r20
-            T[i, a, 1] = a0 * r01 + a1 * r11 + a2 * r21
-            T[i, a, 2] = a0 * r02 + a1 * r12 + a2 * r22
+            if joint_type[i] == 1:
+                T[i, a, 0] = a0 * r00 + a1 * r10 + a2 * r20
+                T[i, a, 1] = a0 * r01 + a1 * r11 + a2 * r21
+                T[i, a, 2] = a0 * r02 + a1 * r12 + a2 * r22
+            else:  # no rotation
+                T[i, a, 0] = a0
+                T[i, a, 1] = a1
+                T[i, a, 2] = a2
             T[i, a, 3] = a0 * t0 + a1 * t1 + a2 * t2 + a3
 
 
@@ -777,12 +785,26 @@ def _self_free(T, C, data):
                 if c == 3:
                     v += T[li, a, 3]
                 PW[k, a, c] = v
+        # PW[k, a, 4]: half extent of the primitive's world AABB along axis a.
+        for a in range(3):
+            if prim_kind[k] == 0:
+                e = 0.0
+                for c in range(3):
+                    e += abs(PW[k, a, c]) * prim_half[k, c]
+            else:
+                u = abs(PW[k, a, 2])
+                e = u * prim_half[k, 2] + math.sqrt(max(1.0 - u * u, 0.0)) * prim_half[k, 0] + 1e-12
+            PW[k, a, 4] = e
     n = 0
     while n < bp_prim.shape[0]:
         k = bp_prim[n]
         li = sph_link[bp_sphere[n]]
         rb = lb_r[li]
-        if _body_prim_d2(PW, k, prim_kind[k], prim_half, LB[li, 0], LB[li, 1], LB[li, 2]) > rb * rb:
+        # The link's bounding sphere outside the primitive's AABB (first) or
+        # apart from the primitive: the whole group is free.
+        if (abs(LB[li, 0] - PW[k, 0, 3]) > PW[k, 0, 4] + rb or abs(LB[li, 1] - PW[k, 1, 3]) > PW[k, 1, 4] + rb
+                or abs(LB[li, 2] - PW[k, 2, 3]) > PW[k, 2, 4] + rb
+                or _body_prim_d2(PW, k, prim_kind[k], prim_half, LB[li, 0], LB[li, 1], LB[li, 2]) > rb * rb):
             n = bp_end[n]
             continue
         end = bp_end[n]
@@ -838,7 +860,7 @@ def _batch_free(Q, head, parent, X_PJ, joint_type, axis, var_index,
     """
     T = np.empty((parent.shape[0], 3, 4))
     C = np.empty((sph_link.shape[0], 3))
-    PW = np.empty((prim_link.shape[0], 3, 4))
+    PW = np.empty((prim_link.shape[0], 3, 5))
     env_aabb = np.empty((box_p.shape[0] + cyl_p.shape[0], 6))
     _env_aabbs(box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, env_aabb)
     near = np.empty(env_aabb.shape[0], dtype=np.int64)
@@ -1292,6 +1314,7 @@ class CollisionChecker:
         self._self_cull = self._self_culling(self.sph_rs)
         self._self_cull_bare = self._self_culling(self.base_radius)  # for `unpadded`
         self.lever = self._joint_levers()
+        self._fk_joint_type = self._needed_links()
         self._planar = None
         self._planar_base()
         self.set_environment(env)
@@ -1355,6 +1378,19 @@ class CollisionChecker:
         other._self_cull = self._self_cull_bare
         return other
 
+    def _needed_links(self) -> np.ndarray:
+        """The tree's joint types for the checks' forward kinematics, -1 for
+        links that carry no sphere and no body primitive and have no
+        descendant that does (e.g. the fingers, sensor frames): skipped."""
+        t = self.tree
+        needed = np.zeros(t.parent.shape[0], bool)
+        needed[self.sph_link] = True
+        needed[self._body[0]] = True
+        for i in range(t.parent.shape[0] - 1, -1, -1):  # parents come before children
+            if needed[i] and t.parent[i] >= 0:
+                needed[t.parent[i]] = True
+        return np.ascontiguousarray(np.where(needed, t.joint_type, -1), dtype=t.joint_type.dtype)
+
     def _group_self_tests(self) -> None:
         """Sorts the sphere pairs by their links and the body tests by
         primitive and link, so that each group is contiguous."""
@@ -1399,7 +1435,7 @@ class CollisionChecker:
     def _args(self):
         t = self.tree
         e = self.env
-        return (self.head, t.parent, t.X_PJ, t.joint_type, t.axis, t.var_index,
+        return (self.head, t.parent, t.X_PJ, self._fk_joint_type, t.axis, t.var_index,
                 self.sph_link, self.sph_c, self.sph_r, self.sph_rs, self.pairs, self.q_lo, self.q_hi,
                 *self._field,
                 e.box_p, e.box_R, e.box_half, e.cyl_p, e.cyl_R, e.cyl_radius, e.cyl_half_length,
@@ -1416,7 +1452,7 @@ class CollisionChecker:
         Q[0, 3:] = torso_arm
         T = np.empty((self.tree.parent.shape[0], 3, 4))
         C = np.empty((self.sph_link.shape[0], 3))
-        PW = np.empty((self._body[0].shape[0], 3, 4))
+        PW = np.empty((self._body[0].shape[0], 3, 5))
         e = self.env
         env_aabb = np.empty((e.box_p.shape[0] + e.cyl_p.shape[0], 6))
         _env_aabbs(e.box_p, e.box_R, e.box_half, e.cyl_p, e.cyl_R, e.cyl_radius, e.cyl_half_length, env_aabb)
