@@ -139,3 +139,48 @@ def test_door_too_narrow_for_the_base_ends_at_the_search_limit(base_checker):
     r = planner.plan(layout.stow_configuration(0.0, 2.0, 0.0), layout.stow_configuration(*g, 0.0))
     assert not r.success and r.reason == FailureReason.NO_BASE_PATH, r.message
     assert "search" in r.message  # the search ran (the 2D relaxation did not rule it out)
+
+
+def test_warm_up_does_not_change_the_plan(base_checker):
+    """`warm_up` only loads the compiled kernels: the same plan after it."""
+    from vamg_drake.planning.problems import room_problem
+
+    problem = room_problem(3, base_checker)
+    env = CollisionEnvironment.from_primitives(problem.obstacles)
+    cold = WholeBodyPlanner.for_fetch(env, CONFIG).plan(problem.q_start, problem.q_goal)
+    planner = WholeBodyPlanner.for_fetch(env, CONFIG)
+    planner.warm_up()
+    warm = planner.plan(problem.q_start, problem.q_goal)
+    assert cold.success and warm.success
+    np.testing.assert_array_equal(cold.trajectory.q, warm.trajectory.q)
+
+
+def test_fixed_base_searches_between_the_along_path_search_rounds(base_checker):
+    """Bench room 26: the along-path search (c) does not connect in its first
+    round, the fixed-base searches (d) do; the plan is free in Drake's exact
+    geometry at 1 cm."""
+    from vamg_drake.planning.drake_reference import DrakeCollisionWorld
+    from vamg_drake.planning.problems import room_problem
+
+    problem = room_problem(26, base_checker)
+    planner = WholeBodyPlanner.for_fetch(CollisionEnvironment.from_primitives(problem.obstacles),
+                                         PlannerConfig(seed=26, attempt_budget_s=5.0))
+    calls = []
+    along, carry = planner._along_base_path, planner._via_carry
+
+    def along_spy(*a, **k):
+        out = along(*a, **k)
+        calls.append(("c", out is not None))
+        return out
+
+    def carry_spy(*a, **k):
+        out = carry(*a, **k)
+        calls.append(("d" if k.get("search", True) else "b", out is not None))
+        return out
+
+    planner._along_base_path, planner._via_carry = along_spy, carry_spy
+    result = planner.plan(problem.q_start, problem.q_goal)
+    assert result.success, result.message
+    assert calls[-2:] == [("c", False), ("d", True)], calls
+    drake = DrakeCollisionWorld(problem.obstacles)
+    assert not any(drake.in_collision(q) for q in _dense_1cm(result.trajectory.q, planner.checker))
