@@ -142,7 +142,7 @@ class PlannerConfig:
     bspline_samples: int = 25
     rrt_step: float = 0.6
     rrt_max_iterations: int = 400
-    along_path_first_iterations: int = 128
+    along_path_first_iterations: int = 64
     placement_fractions: list[float] = dataclasses.field(default_factory=lambda: [0.5, 0.7, 0.85, 1.0])
     fold_fractions: list[float] = dataclasses.field(default_factory=lambda: [0.15, 0.3, 0.0])
     hybrid_astar_max_expansions: int = 8000
