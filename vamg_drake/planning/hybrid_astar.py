@@ -315,6 +315,38 @@ def _prim_poses(x, y, th, kappa, length, dth, n, out):
 
 
 @numba.njit(cache=True)
+def _trace(start, node, poses, parents, prim_of, prims, counts, tail):
+    """The poses from the start along the primitives of the tree path to
+    `node`, then the analytic `tail` (its first pose is the node's)."""
+    n_chain = 0
+    i = node
+    while i > 0:
+        n_chain += 1
+        i = parents[i]
+    chain = np.empty(n_chain, np.int64)
+    i = node
+    for c in range(n_chain - 1, -1, -1):
+        chain[c] = i
+        i = parents[i]
+    total = 1 + tail.shape[0] - 1
+    for c in range(n_chain):
+        total += counts[prim_of[chain[c]]]
+    out = np.empty((total, 3))
+    out[0] = start
+    n = 1
+    buf = np.empty((64, 3))
+    for c in range(n_chain):
+        i = chain[c]
+        p = parents[i]
+        k = prim_of[i]
+        m = _prim_poses(poses[p, 0], poses[p, 1], poses[p, 2], prims[k, 0], prims[k, 1], prims[k, 2], counts[k], buf)
+        out[n:n + m] = buf[:m]
+        n += m
+    out[n:] = tail[1:]
+    return out
+
+
+@numba.njit(cache=True)
 def _any(need, m):
     for k in range(m):
         if need[k] != 0:
@@ -599,21 +631,8 @@ class HybridAStar:
             return None, "no base path (search limit)"
         if status == 0:
             return None, "no base path (search exhausted)"
-        chain = []
-        i = node
-        while i > 0:
-            chain.append(i)
-            i = int(parents[i])
-        segs = [start[None]]
-        buf = np.empty((64, 3))
-        for i in reversed(chain):
-            p = poses[int(parents[i])]
-            k = int(prim_of[i])
-            m = _prim_poses(p[0], p[1], p[2], prims[k, 0], prims[k, 1], prims[k, 2], counts[k], buf)
-            segs.append(buf[:m].copy())
         tail = rs.sample_path(poses[node], types, lengths, c.turning_radius, c.check_step)
-        segs.append(tail[1:])
-        return BasePath(np.concatenate(segs), int(expansions)), ""
+        return BasePath(_trace(start, node, poses, parents, prim_of, prims, counts, tail), int(expansions)), ""
 
     def _free_mask(self) -> np.ndarray:
         """Cells where the footprint may fit at some heading (a relaxation:
