@@ -23,6 +23,10 @@ Measured per problem:
     SceneGraph validity check (`DrakeCollisionWorld`), the same total budget
     (attempts x attempt budget), no simplification.
 
+Untimed warm-up: `--warm-up` problems (seeds 10000...) planned after
+`WholeBodyPlanner.warm_up()` (numba compiles its kernels, or loads them from
+its cache, on first use), and one reference run.
+
 With --json the last line is one JSON object of the metrics.
 """
 
