@@ -100,3 +100,25 @@ def test_bad_config_and_a_colliding_carry_are_errors(checker):
     assert not checker.is_free(np.concatenate([np.zeros(3), self_colliding])[None])[0]
     with pytest.raises(ValueError, match="carry"):
         ArmRoadmap.build(checker, self_colliding, ArmRoadmapConfig(nodes=10))
+
+
+def test_remembered_queries_answer_as_fresh_ones(checker):
+    """`to_carry` and `self_free` answers are remembered; a remembered path is
+    the fresh one, and changing a returned path does not change the next."""
+    roadmap = ArmRoadmap.for_checker(checker, TRAVEL)
+    fresh = ArmRoadmap(checker, roadmap.nodes, roadmap.cost_to_carry, roadmap.next_toward_carry, roadmap.edges,
+                       roadmap.config)  # the same roadmap, nothing remembered
+    answers = []
+    for x in _free_samples(checker, 6, 31):
+        first = roadmap.to_carry(x)
+        if first is not None:
+            first[:] = 0.0  # the caller's copy
+        again = roadmap.to_carry(x)
+        want = fresh.to_carry(x)
+        assert (again is None) == (want is None)
+        if want is not None:
+            np.testing.assert_array_equal(again, want)
+        line = np.stack([x, TRAVEL])
+        assert roadmap.self_free(line) == roadmap.self_free(line) == fresh.self_free(line)
+        answers.append(want is not None)
+    assert any(answers)

@@ -96,6 +96,7 @@ class ArmRoadmap:
         self._self_checker = checker.with_environment(CollisionEnvironment())
         self._space = WholeBodySearchSpace.fixed_base(self._self_checker, np.zeros(3))
         self._lever = np.asarray(checker.lever[_ARM], float)
+        self._memo: dict = {}  # query results (pure functions of the roadmap and the query)
 
     @staticmethod
     def for_checker(checker: CollisionChecker, carry: np.ndarray,
@@ -182,10 +183,21 @@ class ArmRoadmap:
         pred = np.where(pred < 0, -1, pred).astype(np.int64)
         return ArmRoadmap(checker, nodes, cost, pred, np.column_stack([rows, cols]), config)
 
+    def _remember(self, key, value):
+        if len(self._memo) >= 256:
+            self._memo.clear()
+        self._memo[key] = value
+        return value
+
     def self_free(self, W: np.ndarray) -> bool:
         """The torso + arm path W (K, 8) of straight segments is free of
-        self-collision (at any base pose)."""
-        return all(self._space.motion_free(W[i], W[i + 1]) for i in range(W.shape[0] - 1))
+        self-collision (at any base pose). Answers are remembered (the
+        planner asks again in later stages and attempts)."""
+        W = np.ascontiguousarray(W, float)
+        key = ("free", W.shape, W.tobytes())
+        if key in self._memo:
+            return self._memo[key]
+        return self._remember(key, all(self._space.motion_free(W[i], W[i + 1]) for i in range(W.shape[0] - 1)))
 
     def _distance(self, a: np.ndarray, X: np.ndarray) -> np.ndarray:
         return np.abs(X - a) @ self._lever
@@ -199,6 +211,15 @@ class ArmRoadmap:
         tree, and is shortened greedily (each waypoint joined to the
         farthest later one it reaches by a self-free straight motion)."""
         x = np.asarray(x, float).reshape(layout.NQ - 3)
+        key = ("carry", x.tobytes())
+        if key in self._memo:
+            path = self._memo[key]
+            return None if path is None else path.copy()
+        path = self._to_carry(x)
+        self._remember(key, path)
+        return None if path is None else path.copy()
+
+    def _to_carry(self, x: np.ndarray) -> np.ndarray | None:
         xw = _wrap(x)
         offset = x - xw
         d = self._distance(xw, self.nodes)

@@ -815,16 +815,17 @@ class WholeBodyPlanner:
         if roadmap is None:
             yield line
             return
-        if roadmap.self_free(line):
+        line_free = roadmap.self_free(line)
+        if line_free:
             yield line
         if roadmap.nodes.shape[0] and np.max(np.abs(_wrap_arm(a) - roadmap.nodes[0])) < 1e-9:
             W = roadmap.to_carry(b)  # b -> travel, reversed and shifted to start at a
-            if W is not None:
-                yield W[::-1] + (a - W[-1])
+            W = None if W is None else W[::-1] + (a - W[-1])
         else:
             W = roadmap.to_carry(a)
-            if W is not None:
-                yield W
+        # (the roadmap's path shortened to the very line already tried: not again)
+        if W is not None and not (line_free and W.shape == line.shape and np.array_equal(W, line)):
+            yield W
 
     def _arm_roadmap(self) -> ArmRoadmap:
         if self._roadmap is None:
