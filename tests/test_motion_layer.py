@@ -58,6 +58,28 @@ def test_linear_goal_is_a_straight_joint_space_motion_within_its_speed():
     assert feedback.goal_id == 3 and feedback.event == MotionEvent.REACHED
 
 
+def test_a_robot_behind_schedule_gets_slack_in_proportion_to_the_motion():
+    """The tracker follows the path, not the clock: a robot still short of the
+    goal settle_time after the end of a long motion is not failed until
+    settle_time + settle_time_fraction * duration; then it is."""
+    config = PlannerSystemConfig(planner=PlannerConfig(attempt_budget_s=5.0))
+    system, context = _system(config)
+    q0 = layout.stow_configuration(1.0, 2.0, 0.5)
+    q1 = q0.copy()
+    q1[layout.TORSO] += 0.3  # 12 s at 0.25 x 0.1 m/s
+    system.GetInputPort("robot_configuration").FixValue(context, q0)
+    system.GetInputPort("goal").FixValue(context, AbstractValue.Make(_goal(4, q1, "linear", Phase.GRASP_LIFT)))
+    simulator = Simulator(system, context)
+    simulator.AdvanceTo(0.05)
+    traj = system.GetOutputPort("timed_trajectory").Eval(context)
+    slack = config.settle_time + config.settle_time_fraction * traj.duration
+    simulator.AdvanceTo(traj.end_time + config.settle_time + 0.5)
+    assert system.GetOutputPort("motion_feedback").Eval(context).event == MotionEvent.NONE
+    simulator.AdvanceTo(traj.end_time + slack + 0.2)
+    feedback = system.GetOutputPort("motion_feedback").Eval(context)
+    assert feedback.goal_id == 4 and feedback.event == MotionEvent.FAILED
+
+
 def test_hold_goal_stops_the_robot():
     system, context = _system()
     q0 = layout.stow_configuration(0.0, 0.0, 0.0)
