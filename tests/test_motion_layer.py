@@ -80,6 +80,25 @@ def test_a_robot_behind_schedule_gets_slack_in_proportion_to_the_motion():
     assert feedback.goal_id == 4 and feedback.event == MotionEvent.FAILED
 
 
+def test_the_target_exempts_the_gripper_only_while_moving_to_a_grasp():
+    """The target's points block the whole robot for pre-grasp and observe
+    goals; only a grasp's own motion lets the gripper near them."""
+    system, context = _system()
+    target = np.array([2.0, 2.0, 0.8])
+    ball = target + 0.03 * np.random.default_rng(0).normal(size=(200, 3))
+    system.GetInputPort("point_map").FixValue(context, AbstractValue.Make(
+        PointMapSnapshot(ball, np.zeros(len(ball), np.int64), 0.03, 1)))
+    system.GetInputPort("target").FixValue(context, target)
+    q0 = layout.stow_configuration(0.0, 0.0, 0.0)
+    system.GetInputPort("robot_configuration").FixValue(context, q0)
+    simulator = Simulator(system, context)
+    for goal_id, phase, exempt in ((1, Phase.PREGRASP, False), (2, Phase.GRASP_MOVE, True),
+                                   (3, Phase.OBSERVE, False)):
+        system.GetInputPort("goal").FixValue(context, AbstractValue.Make(_goal(goal_id, q0, "hold", phase)))
+        simulator.AdvanceTo(context.get_time() + 0.1)
+        assert (system.planner.checker.env.grasp_target_radius > 0.0) == exempt, phase
+
+
 def test_hold_goal_stops_the_robot():
     system, context = _system()
     q0 = layout.stow_configuration(0.0, 0.0, 0.0)

@@ -21,7 +21,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 from vamg_drake.planning.collision import CollisionEnvironment
 from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig, WholeBodyPlanner
-from vamg_drake.policy.behaviour_tree import MotionEvent, SubgoalCommand
+from vamg_drake.policy.behaviour_tree import GRASP_PHASES, MotionEvent, SubgoalCommand
 from vamg_drake.robot import layout
 from vamg_drake.systems.timing import ModuleTimings
 
@@ -69,8 +69,12 @@ class PlannerSystemConfig:
         period: how often the system looks for work (new goal, new map) [s].
         floor_z: map points below this height are the floor, not obstacles [m].
         target_clearance: map points this close to the target are the object
-            to grasp: obstacles to the robot except its gripper, which is
-            meant to reach them [m].
+            to grasp: while moving to a grasp's pre-grasp pose they are
+            obstacles to the robot except its gripper, which is meant to reach
+            them; for every other goal (pre-grasp, observe) they are obstacles
+            to the gripper too (static s0001: with the exemption on every
+            motion the palm swept through the target between two pre-grasp
+            poses) [m].
         reach_tolerance: every joint of q within this of the goal reports REACHED.
         linear_reach_tolerance: the same for "linear" goals (the grasp approach
             and lift), which must end on the grasp pose: 0.03 rad per arm joint
@@ -335,7 +339,8 @@ class PlannerSystem(LeafSystem):
         refresh = goal.goal_id != plan.goal_id or t - self._env_time >= self._config.recheck_period - 1e-9
         if refresh:
             try:
-                self._env_revision = self._set_map(snapshot, p_WT)
+                grasping = goal.phase in GRASP_PHASES
+                self._env_revision = self._set_map(snapshot, p_WT if grasping else None)
             except ValueError as e:
                 _log.error("WholeBodyPlanner: bad map (%s)", e)
                 return EventStatus.Succeeded()
