@@ -266,7 +266,7 @@ class AntipodalGraspSampler:
         x_axis = (ca[None, :, None] * u[:, None, :] + sa[None, :, None] * v[:, None, :]).reshape(-1, 3)
         rep = lambda a: np.repeat(a, cfg.num_approaches, axis=0)  # noqa: E731
         y_rep, c_rep, w_rep, q_rep = rep(y_axis), rep(center), rep(width), rep(quality)
-        X_WG, ok, offset = self._clear_frames(crop, x_axis, y_rep, c_rep, w_rep)
+        X_WG, ok, offset = self._clear_frames(crop, normals, x_axis, y_rep, c_rep, w_rep)
         if not np.any(ok):
             return GraspCandidates.empty("every antipodal grasp collides with the observed cloud (no finger clearance)")
         X_WG, w_rep, q_rep, c_rep, offset = X_WG[ok], w_rep[ok], q_rep[ok], c_rep[ok], offset[ok]
@@ -276,8 +276,8 @@ class AntipodalGraspSampler:
         order = np.argsort(-score, kind="stable")[: cfg.max_candidates]
         return GraspCandidates(X_WG[order], score[order], w_rep[order])
 
-    def _clear_frames(self, points: np.ndarray, x_axis: np.ndarray, y_axis: np.ndarray, center: np.ndarray,
-                      width: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _clear_frames(self, points: np.ndarray, normals: np.ndarray, x_axis: np.ndarray, y_axis: np.ndarray,
+                      center: np.ndarray, width: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Grasp frames X_WG (K, 4, 4) with the contacts at the first of
         ``contact_offsets`` where the gripper clears the cloud, whether one does
         (K,), and that offset (K,)."""
@@ -287,7 +287,7 @@ class AntipodalGraspSampler:
         todo = np.arange(x_axis.shape[0])
         for contact_x in self.config.contact_offsets:
             X = _frames_from_axes(x_axis[todo], y_axis[todo], center[todo] - contact_x * x_axis[todo])
-            clear = self._clearance_ok(points, X, width[todo])
+            clear = self._clearance_ok(points, X, width[todo], normals)
             X_WG[todo] = X
             ok[todo[clear]] = True
             offset[todo] = contact_x
@@ -332,12 +332,23 @@ class AntipodalGraspSampler:
             return np.zeros((0, 2), dtype=int)
         return np.concatenate(pairs)
 
-    def _clearance_ok(self, points: np.ndarray, X_WG: np.ndarray, width: np.ndarray) -> np.ndarray:
-        """True where the fingers' closing sweep and the palm's approach sweep are point-free."""
+    def _clearance_ok(self, points: np.ndarray, X_WG: np.ndarray, width: np.ndarray,
+                      normals: np.ndarray | None = None) -> np.ndarray:
+        """True where the fingers' closing sweep and the palm's approach sweep are
+        point-free and the pads' middle is over the object (`min_pad_span`; with
+        `normals`, only points whose normal lies in the friction cone of the
+        closing axis are contact-surface points)."""
         cfg = self.config
         g = cfg.gripper
+        if normals is None:
+            normals = np.zeros_like(points)
+            cos_cone = -1.0  # every point's normal qualifies
+        else:
+            cos_cone = float(np.cos(np.arctan(cfg.friction_coefficient)))
         return _clearance_kernel(
             np.ascontiguousarray(points),
+            np.ascontiguousarray(normals, dtype=float),
+            cos_cone,
             np.ascontiguousarray(X_WG),
             np.ascontiguousarray(width),
             self._margin,
@@ -356,6 +367,8 @@ class AntipodalGraspSampler:
 @numba.njit(cache=True, parallel=True)
 def _clearance_kernel(
     points: np.ndarray,
+    normals: np.ndarray,
+    cos_cone: float,
     X_WG: np.ndarray,
     width: np.ndarray,
     margin: float,
@@ -399,7 +412,12 @@ def _clearance_kernel(
                 if z <= 0.5 * finger_width:
                     if y < inner:
                         support += 1
-                        if y >= inner - 3.0 * margin:  # on a contact surface
+                        # On a contact surface: near the contact plane, its normal
+                        # within the friction cone of the closing axis (a box's top
+                        # face beside the pads is no contact: static s0003).
+                        n_y = abs(X_WG[k, 0, 1] * normals[n, 0] + X_WG[k, 1, 1] * normals[n, 1]
+                                  + X_WG[k, 2, 1] * normals[n, 2])
+                        if y >= inner - 3.0 * margin and n_y >= cos_cone:
                             z_low = min(z_low, z_signed)
                             z_high = max(z_high, z_signed)
                     elif y <= half_open + finger_thickness:
