@@ -184,3 +184,50 @@ def test_the_support_under_the_grasp_target_blocks_the_gripper():
     for points, expect_free in ((obj, True), (np.concatenate([table, obj]), False)):
         env = CollisionEnvironment.from_points(points, 0.03, grasp_target=p_WT, grasp_target_radius=0.1)
         assert bool(checker.with_environment(env).is_free(q[None])[0]) is expect_free
+
+
+def test_drive_free_matches_is_free(room):
+    """The held-arm drive check (forward kinematics and self-collision once,
+    spheres moved rigidly with the base) gives the verdicts of the full
+    check, for exact primitives and for a map with a grasp target."""
+    rng = np.random.default_rng(21)
+    points = np.concatenate([rng.uniform([1.0, 1.0, 0.0], [2.0, 1.5, 0.9], (2000, 3)),
+                             rng.uniform([3.5, 2.0, 0.6], [4.5, 3.0, 0.8], (2000, 3))])
+    envs = [CollisionEnvironment.from_primitives(room),
+            CollisionEnvironment.from_points(points, 0.03, grasp_target=np.array([4.0, 2.5, 0.85]),
+                                             grasp_target_radius=0.1)]
+    arms = [np.array([0.167, 0.43, 1.214, -0.738, 1.461, -0.093, 1.597, -1.9]),
+            np.concatenate([[0.0], layout.Q_ARM_STOW])]
+    arms += list(rng.uniform(layout.SAMPLE_LOWER[3:], layout.SAMPLE_UPPER[3:], (6, 8)))
+    verdicts = []
+    for env in envs:
+        checker = CollisionChecker.for_fetch(env)
+        for arm in arms:
+            poses = np.column_stack([rng.uniform(0.0, 6.0, 2000), rng.uniform(0.0, 5.0, 2000),
+                                     rng.uniform(-8.0, 8.0, 2000)])
+            Q = np.concatenate([poses, np.repeat(arm[None], poses.shape[0], axis=0)], axis=1)
+            expected = checker.is_free(Q)
+            np.testing.assert_array_equal(checker.drive_free(poses, arm), expected)
+            verdicts.append(expected.mean())
+    assert min(verdicts) == 0.0 and max(verdicts) > 0.3  # self-colliding arms and free drives both seen
+
+
+def test_base_pose_exact_check_matches_is_free(room):
+    """`base_pose_free_exact` (the torso + arm's spheres precomputed in the
+    base frame, moved rigidly) agrees with the full check."""
+    from vamg_drake.planning.collision import base_pose_free_exact
+
+    rng = np.random.default_rng(22)
+    checker = CollisionChecker.for_fetch(CollisionEnvironment.from_primitives(room))
+    arms = [np.array([0.167, 0.43, 1.214, -0.738, 1.461, -0.093, 1.597, -1.9])]
+    arms += list(rng.uniform(layout.SAMPLE_LOWER[3:], layout.SAMPLE_UPPER[3:], (4, 8)))
+    seen = []
+    for arm in arms:
+        data = checker.base_pose_check_data(arm)
+        poses = np.column_stack([rng.uniform(0.0, 6.0, 500), rng.uniform(0.0, 5.0, 500), rng.uniform(-8, 8, 500)])
+        got = np.array([base_pose_free_exact(x, y, th, data) for x, y, th in poses])
+        Q = np.concatenate([poses, np.repeat(arm[None], poses.shape[0], axis=0)], axis=1)
+        Q[:, 2] = layout.wrap_angle(Q[:, 2])
+        np.testing.assert_array_equal(got, checker.is_free(Q))
+        seen.append(got.mean())
+    assert min(seen) < 0.5 < max(seen)

@@ -81,3 +81,41 @@ def test_configs_load_from_yaml():
     assert config.period == 0.2
     assert config.planner.seed == 4 and config.planner.fold_fractions == [0.5]
     assert config.planner.max_attempts == 3
+
+
+def _synchronized_path_reference(poses, W):
+    """The NumPy formulation of `WholeBodyPlanner._synchronized_path`."""
+    seg = np.abs(np.diff(W, axis=0)).sum(axis=1)
+    sa = np.concatenate([[0.0], np.cumsum(seg)])
+    sa = sa / sa[-1] if sa[-1] > 0 else np.linspace(0.0, 1.0, W.shape[0])
+    d = np.diff(poses, axis=0)
+    t = np.maximum(np.hypot(d[:, 0], d[:, 1]) / layout.TRACKER_BASE_V, np.abs(d[:, 2]) / layout.TRACKER_BASE_W)
+    sb = np.concatenate([[0.0], np.cumsum(t)])
+    sb = sb / sb[-1] if sb[-1] > 0 else np.linspace(0.0, 1.0, poses.shape[0])
+    s = np.union1d(sa, sb)
+    base = np.column_stack([np.interp(s, sb, poses[:, i]) for i in range(3)])
+    arm = np.column_stack([np.interp(s, sa, W[:, i]) for i in range(W.shape[1])])
+    return np.concatenate([base, arm], axis=1)
+
+
+def test_compiled_synchronization_and_held_arm_densification_match_numpy():
+    from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment, densify
+    from vamg_drake.planning.whole_body_planner import WholeBodyPlanner, _densify_poses
+
+    rng = np.random.default_rng(7)
+    checker = CollisionChecker.for_fetch(CollisionEnvironment())
+    for m, k in [(2, 2), (5, 2), (40, 4), (17, 9), (3, 3)]:
+        poses = np.cumsum(rng.normal(0.0, 0.2, (m, 3)), axis=0)
+        poses[1] = poses[0] if m > 2 else poses[1]  # a repeated pose (zero-length step)
+        W = rng.uniform(layout.SAMPLE_LOWER[3:], layout.SAMPLE_UPPER[3:], (k, 8))
+        got = WholeBodyPlanner._synchronized_path(poses, W)
+        want = _synchronized_path_reference(poses, W)
+        np.testing.assert_allclose(got, want, rtol=0.0, atol=1e-12)
+        np.testing.assert_array_equal(got[0], np.r_[poses[0], W[0]])  # the ends exactly
+        np.testing.assert_array_equal(got[-1], np.r_[poses[-1], W[-1]])
+        arm = W[0]
+        Q = np.concatenate([poses, np.repeat(arm[None], m, axis=0)], axis=1)
+        dense, index = _densify_poses(poses, float(checker.lever[2]), checker.config.motion_resolution)
+        want = densify(Q, checker)
+        np.testing.assert_array_equal(dense, want[:, :3])  # the very states `densify` gives
+        np.testing.assert_allclose(dense[index], poses, rtol=0.0, atol=1e-12)

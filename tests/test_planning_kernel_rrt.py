@@ -76,3 +76,34 @@ def test_rrt_connect_reports_the_iteration_limit(room):
     path, why = space.rrt_connect(p.q_start[3:], blocked, LO, HI, W, np.random.default_rng(0),
                                   KernelRRTConfig(max_iterations=50))
     assert path is None and why == "iteration limit"
+
+
+def test_a_paused_and_resumed_search_finds_the_same_path(room):
+    """`RRTConnectSearch` stopped after a few iterations (reporting the
+    iteration limit) and resumed gives the path of one uninterrupted run."""
+    from vamg_drake.planning.whole_body_rrt import RRTConnectSearch
+
+    p, cc = room
+    space = WholeBodySearchSpace.fixed_base(cc, p.q_start[:3])
+    rng = np.random.default_rng(2)
+    cfg = KernelRRTConfig(max_iterations=2000, chunk=1)
+    needed = 0
+    for _ in range(200):  # a goal the search needs a few iterations for
+        goal = rng.uniform(LO, HI)
+        if not cc.is_free(np.r_[p.q_start[:3], goal][None])[0] or space.motion_free(p.q_start[3:], goal):
+            continue
+        probe = RRTConnectSearch(space, p.q_start[3:], goal, LO, HI, W, np.random.default_rng(5), cfg)
+        if probe.run(None)[0] is not None and probe.iteration >= 4:
+            needed = probe.iteration  # chunk=1: the iteration that connected
+            break
+    assert needed >= 4
+    whole, why = space.rrt_connect(p.q_start[3:], goal, LO, HI, W, np.random.default_rng(5), cfg)
+    assert whole is not None, why
+    search = RRTConnectSearch(space, p.q_start[3:], goal, LO, HI, W, np.random.default_rng(5),
+                              KernelRRTConfig(max_iterations=2000, chunk=4))
+    paused, why = search.run(needed - 1)
+    assert paused is None and why == "iteration limit" and search.iteration == needed - 1
+    resumed, why = search.run(None)
+    assert resumed is not None, why
+    np.testing.assert_array_equal(resumed, whole)
+    np.testing.assert_array_equal(search.run(5)[0], whole)  # finished: the same answer

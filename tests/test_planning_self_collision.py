@@ -47,3 +47,23 @@ def test_self_padding_keeps_most_of_the_arm_free():
     free0 = _checker(True, 0.0).is_free(Q).mean()
     free15 = _checker(True, 0.015).is_free(Q).mean()
     assert free15 > 0.8 * free0
+
+
+def test_link_bounding_sphere_culling_agrees_with_every_test():
+    """Self-collision groups skipped by their links' bounding spheres
+    (`CollisionChecker._self_culling`) never hide a collision: the same
+    verdicts as testing every pair, padded and unpadded."""
+    def no_culling(checker):
+        lb_c, lb_r, pair_end, bp_end = checker._self_cull
+        checker._self_cull = (lb_c, np.where(lb_r < 0, lb_r, 1e3), pair_end, bp_end)
+        return checker
+
+    rng = np.random.default_rng(14)
+    Q = rng.uniform(layout.SAMPLE_LOWER, layout.SAMPLE_UPPER, (50_000, layout.NQ))
+    for padding in (0.0, 0.015):
+        culled = _checker(True, padding)
+        free = culled.is_free(Q)
+        assert 0.05 < free.mean() < 0.95
+        np.testing.assert_array_equal(free, no_culling(_checker(True, padding)).is_free(Q))
+        np.testing.assert_array_equal(culled.unpadded().is_free(Q),
+                                      no_culling(_checker(True, padding).unpadded()).is_free(Q))

@@ -45,6 +45,7 @@ def _primitive_clearance_2d(layers, origin, h, band_lo, band_hi, box_p, box_R, b
     n_layers, nx, ny = layers.shape
     nb = box_p.shape[0]
     ex = np.empty(3)
+    meet = np.empty(n_layers, np.int64)
     for k in range(nb + cyl_p.shape[0]):
         if k < nb:
             for a in range(3):
@@ -65,42 +66,50 @@ def _primitive_clearance_2d(layers, origin, h, band_lo, band_hi, box_p, box_R, b
         i1 = min(int(math.ceil((cx + ex[0] + cap - origin[0]) / h)), nx - 1)
         j0 = max(int(math.floor((cy - ex[1] - cap - origin[1]) / h)), 0)
         j1 = min(int(math.ceil((cy + ex[1] + cap - origin[1]) / h)), ny - 1)
+        # The layers whose band the primitive meets (the distance is computed
+        # once per cell for all of them).
+        n_meet = 0
         for b in range(n_layers):
-            if cz + ex[2] < band_lo[b] or cz - ex[2] > band_hi[b]:
-                continue
-            for i in range(i0, i1 + 1):
-                gx = origin[0] + i * h - cx
-                for j in range(j0, j1 + 1):
-                    gy = origin[1] + j * h - cy
-                    if upright and k < nb:
-                        lx = abs(box_R[k, 0, 0] * gx + box_R[k, 1, 0] * gy) - box_half[k, 0]
-                        ly = abs(box_R[k, 0, 1] * gx + box_R[k, 1, 1] * gy) - box_half[k, 1]
-                    elif upright:
-                        lx = math.sqrt(gx * gx + gy * gy) - cyl_r[k - nb]
-                        ly = 0.0
-                    else:
-                        lx = abs(gx) - ex[0]
-                        ly = abs(gy) - ex[1]
-                    d2 = 0.0
-                    if lx > 0.0:
-                        d2 += lx * lx
-                    if ly > 0.0:
-                        d2 += ly * ly
-                    d = math.sqrt(d2)
+            if not (cz + ex[2] < band_lo[b] or cz - ex[2] > band_hi[b]):
+                meet[n_meet] = b
+                n_meet += 1
+        if n_meet == 0:
+            continue
+        for i in range(i0, i1 + 1):
+            gx = origin[0] + i * h - cx
+            for j in range(j0, j1 + 1):
+                gy = origin[1] + j * h - cy
+                if upright and k < nb:
+                    lx = abs(box_R[k, 0, 0] * gx + box_R[k, 1, 0] * gy) - box_half[k, 0]
+                    ly = abs(box_R[k, 0, 1] * gx + box_R[k, 1, 1] * gy) - box_half[k, 1]
+                elif upright:
+                    lx = math.sqrt(gx * gx + gy * gy) - cyl_r[k - nb]
+                    ly = 0.0
+                else:
+                    lx = abs(gx) - ex[0]
+                    ly = abs(gy) - ex[1]
+                d2 = 0.0
+                if lx > 0.0:
+                    d2 += lx * lx
+                if ly > 0.0:
+                    d2 += ly * ly
+                d = math.sqrt(d2)
+                for m in range(n_meet):
+                    b = meet[m]
                     if d < layers[b, i, j]:
                         layers[b, i, j] = d
 
 
 def _primitive_xy_box(env: CollisionEnvironment) -> tuple[np.ndarray, np.ndarray] | None:
     lo, hi = [], []
-    for p, R, half in zip(env.box_p, env.box_R, env.box_half):
-        e = np.abs(R) @ half
-        lo.append(p - e)
-        hi.append(p + e)
-    for p, R, r, hl in zip(env.cyl_p, env.cyl_R, env.cyl_radius, env.cyl_half_length):
-        e = np.abs(R[:, 2]) * hl + r
-        lo.append(p - e)
-        hi.append(p + e)
+    if env.box_p.shape[0]:
+        e = np.einsum("kij,kj->ki", np.abs(env.box_R), env.box_half)
+        lo.append((env.box_p - e).min(axis=0))
+        hi.append((env.box_p + e).max(axis=0))
+    if env.cyl_p.shape[0]:
+        e = np.abs(env.cyl_R[:, :, 2]) * env.cyl_half_length[:, None] + env.cyl_radius[:, None]
+        lo.append((env.cyl_p - e).min(axis=0))
+        hi.append((env.cyl_p + e).max(axis=0))
     if not lo:
         return None
     return np.min(lo, axis=0)[:2], np.max(hi, axis=0)[:2]

@@ -612,35 +612,42 @@ def _env_aabbs(box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, out):
 
 
 @numba.njit(cache=True)
-def _config_free(Q, b, head, parent, X_PJ, joint_type, axis, var_index,
-                 sph_link, sph_c, sph_r, sph_rs, pairs, q_lo, q_hi, T, C, PW,
-                 has_field, dist, origin, h, margin, pts, cell_keys, cell_start, tgt_c, tgt_r, sph_grip,
-                 box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
-                 prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere,
-                 env_aabb, near):
-    """Validity of configuration Q[b]; T, C, PW, near are scratch arrays.
+def _body_prim_d2(PW, k, kind, half, cx, cy, cz):
+    """Squared distance from point (cx, cy, cz) to body primitive k (world pose PW[k])."""
+    dx = cx - PW[k, 0, 3]
+    dy = cy - PW[k, 1, 3]
+    dz = cz - PW[k, 2, 3]
+    sx = PW[k, 0, 0] * dx + PW[k, 1, 0] * dy + PW[k, 2, 0] * dz
+    sy = PW[k, 0, 1] * dx + PW[k, 1, 1] * dy + PW[k, 2, 1] * dz
+    sz = PW[k, 0, 2] * dx + PW[k, 1, 2] * dy + PW[k, 2, 2] * dz
+    if kind == 0:
+        ex = max(abs(sx) - half[k, 0], 0.0)
+        ey = max(abs(sy) - half[k, 1], 0.0)
+        ez = max(abs(sz) - half[k, 2], 0.0)
+        return ex * ex + ey * ey + ez * ez
+    er = max(math.sqrt(sx * sx + sy * sy) - half[k, 0], 0.0)
+    ez = max(abs(sz) - half[k, 2], 0.0)
+    return er * er + ez * ez
 
-    Environment primitives are culled per configuration: only those whose
-    world AABB (`env_aabb`, see `_env_aabbs`) overlaps the AABB of the
-    robot's inflated spheres are tested, each first against the sphere's own
-    box.
-    """
-    for j in range(Q.shape[1]):
-        if not (Q[b, j] >= q_lo[j] and Q[b, j] <= q_hi[j]):  # also rejects NaN
-            return False
-    _link_transforms(Q, b, head, parent, X_PJ, joint_type, axis, var_index, T)
-    S = sph_link.shape[0]
+
+@numba.njit(cache=True, inline="always")
+def _env_free(C, data):
+    """The spheres at world centres C (S, 3) (radii `sph_r`, those with
+    `check_env`) are free of the environment of the checker tuple `data`
+    (see `_config_free`)."""
+    env_aabb, near = data[4], data[5]
+    sph_r = data[14]
+    has_field, dist, origin, h, margin = data[19], data[20], data[21], data[22], data[23]
+    pts, cell_keys, cell_start, tgt_c, tgt_r, sph_grip = data[24], data[25], data[26], data[27], data[28], data[29]
+    box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env = (data[30], data[31], data[32], data[33],
+                                                                     data[34], data[35], data[36], data[37])
+    S = C.shape[0]
     lx0, ly0, lz0 = 1e300, 1e300, 1e300
     hx0, hy0, hz0 = -1e300, -1e300, -1e300
     for s in range(S):
-        li = sph_link[s]
-        px, py, pz = sph_c[s, 0], sph_c[s, 1], sph_c[s, 2]
-        cx = T[li, 0, 0] * px + T[li, 0, 1] * py + T[li, 0, 2] * pz + T[li, 0, 3]
-        cy = T[li, 1, 0] * px + T[li, 1, 1] * py + T[li, 1, 2] * pz + T[li, 1, 3]
-        cz = T[li, 2, 0] * px + T[li, 2, 1] * py + T[li, 2, 2] * pz + T[li, 2, 3]
-        C[s, 0], C[s, 1], C[s, 2] = cx, cy, cz
         if not check_env[s]:
             continue
+        cx, cy, cz = C[s, 0], C[s, 1], C[s, 2]
         r = sph_r[s]
         lx0 = min(lx0, cx - r)
         ly0 = min(ly0, cy - r)
@@ -715,15 +722,51 @@ def _config_free(Q, b, head, parent, X_PJ, joint_type, axis, var_index,
                         d2 += ez * ez
                     if d2 <= r * r:
                         return False
-    for k in range(pairs.shape[0]):
+    return True
+
+
+@numba.njit(cache=True, inline="always")
+def _self_free(T, C, data):
+    """No self-collision for link poses T and sphere centres C (see
+    `_config_free`)."""
+    PW = data[3]
+    sph_link, sph_rs, pairs = data[12], data[15], data[16]
+    prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere = (data[38], data[39], data[40], data[41],
+                                                                  data[42], data[43])
+    lb_c, lb_r, pair_end, bp_end, LB = data[44], data[45], data[46], data[47], data[48]
+    # Self-collision tests are grouped by link (pairs by their two links,
+    # body tests by primitive and link); a group is skipped when the links'
+    # bounding spheres (`CollisionChecker._self_culling`) are apart.
+    for li in range(lb_r.shape[0]):
+        if lb_r[li] < 0.0:
+            continue
+        px, py, pz = lb_c[li, 0], lb_c[li, 1], lb_c[li, 2]
+        for a in range(3):
+            LB[li, a] = T[li, a, 0] * px + T[li, a, 1] * py + T[li, a, 2] * pz + T[li, a, 3]
+    k = 0
+    while k < pairs.shape[0]:
         a = pairs[k, 0]
         b = pairs[k, 1]
-        dx = C[a, 0] - C[b, 0]
-        dy = C[a, 1] - C[b, 1]
-        dz = C[a, 2] - C[b, 2]
-        rr = sph_rs[a] + sph_rs[b]
-        if dx * dx + dy * dy + dz * dz <= rr * rr:
-            return False
+        la = sph_link[a]
+        lb = sph_link[b]
+        dx = LB[la, 0] - LB[lb, 0]
+        dy = LB[la, 1] - LB[lb, 1]
+        dz = LB[la, 2] - LB[lb, 2]
+        rr = lb_r[la] + lb_r[lb]
+        if dx * dx + dy * dy + dz * dz > rr * rr:
+            k = pair_end[k]
+            continue
+        end = pair_end[k]
+        while k < end:
+            a = pairs[k, 0]
+            b = pairs[k, 1]
+            dx = C[a, 0] - C[b, 0]
+            dy = C[a, 1] - C[b, 1]
+            dz = C[a, 2] - C[b, 2]
+            rr = sph_rs[a] + sph_rs[b]
+            if dx * dx + dy * dy + dz * dz <= rr * rr:
+                return False
+            k += 1
     # Spheres against the exact primitives of the robot body (self-collision).
     # World poses of the primitives first: PW[k] = T[link] @ X_LS (3x4).
     for k in range(prim_link.shape[0]):
@@ -734,27 +777,52 @@ def _config_free(Q, b, head, parent, X_PJ, joint_type, axis, var_index,
                 if c == 3:
                     v += T[li, a, 3]
                 PW[k, a, c] = v
-    for n in range(bp_prim.shape[0]):
+    n = 0
+    while n < bp_prim.shape[0]:
         k = bp_prim[n]
-        sidx = bp_sphere[n]
-        dx = C[sidx, 0] - PW[k, 0, 3]
-        dy = C[sidx, 1] - PW[k, 1, 3]
-        dz = C[sidx, 2] - PW[k, 2, 3]
-        sx = PW[k, 0, 0] * dx + PW[k, 1, 0] * dy + PW[k, 2, 0] * dz
-        sy = PW[k, 0, 1] * dx + PW[k, 1, 1] * dy + PW[k, 2, 1] * dz
-        sz = PW[k, 0, 2] * dx + PW[k, 1, 2] * dy + PW[k, 2, 2] * dz
-        if prim_kind[k] == 0:
-            ex = max(abs(sx) - prim_half[k, 0], 0.0)
-            ey = max(abs(sy) - prim_half[k, 1], 0.0)
-            ez = max(abs(sz) - prim_half[k, 2], 0.0)
-            d2 = ex * ex + ey * ey + ez * ez
-        else:
-            er = max(math.sqrt(sx * sx + sy * sy) - prim_half[k, 0], 0.0)
-            ez = max(abs(sz) - prim_half[k, 2], 0.0)
-            d2 = er * er + ez * ez
-        if d2 <= sph_rs[sidx] * sph_rs[sidx]:
-            return False
+        li = sph_link[bp_sphere[n]]
+        rb = lb_r[li]
+        if _body_prim_d2(PW, k, prim_kind[k], prim_half, LB[li, 0], LB[li, 1], LB[li, 2]) > rb * rb:
+            n = bp_end[n]
+            continue
+        end = bp_end[n]
+        while n < end:
+            sidx = bp_sphere[n]
+            if _body_prim_d2(PW, k, prim_kind[k], prim_half, C[sidx, 0], C[sidx, 1], C[sidx, 2]) <= \
+                    sph_rs[sidx] * sph_rs[sidx]:
+                return False
+            n += 1
     return True
+
+
+@numba.njit(cache=True, inline="always")
+def _config_free(Q, b, data):
+    """Validity of configuration Q[b] for the checker tuple `data` (see
+    `CollisionChecker.base_pose_check_data`: scratch arrays T, C, PW, the
+    environment's AABBs and `near`, then `CollisionChecker._args`). One tuple
+    instead of ~45 array arguments: a compiled call costs ~20 ns per array
+    argument (reference counting), as much as the check itself.
+
+    Environment primitives are culled per configuration: only those whose
+    world AABB (`env_aabb`, see `_env_aabbs`) overlaps the AABB of the
+    robot's inflated spheres are tested, each first against the sphere's own
+    box.
+    """
+    T, C = data[1], data[2]
+    sph_link, sph_c, q_lo, q_hi = data[12], data[13], data[17], data[18]
+    for j in range(Q.shape[1]):
+        if not (Q[b, j] >= q_lo[j] and Q[b, j] <= q_hi[j]):  # also rejects NaN
+            return False
+    _link_transforms(Q, b, data[6], data[7], data[8], data[9], data[10], data[11], T)
+    for s in range(sph_link.shape[0]):
+        li = sph_link[s]
+        px, py, pz = sph_c[s, 0], sph_c[s, 1], sph_c[s, 2]
+        C[s, 0] = T[li, 0, 0] * px + T[li, 0, 1] * py + T[li, 0, 2] * pz + T[li, 0, 3]
+        C[s, 1] = T[li, 1, 0] * px + T[li, 1, 1] * py + T[li, 1, 2] * pz + T[li, 1, 3]
+        C[s, 2] = T[li, 2, 0] * px + T[li, 2, 1] * py + T[li, 2, 2] * pz + T[li, 2, 3]
+    if not _env_free(C, data):
+        return False
+    return _self_free(T, C, data)
 
 
 @numba.njit(cache=True)
@@ -762,7 +830,7 @@ def _batch_free(Q, head, parent, X_PJ, joint_type, axis, var_index,
                 sph_link, sph_c, sph_r, sph_rs, pairs, q_lo, q_hi,
                 has_field, dist, origin, h, margin, pts, cell_keys, cell_start, tgt_c, tgt_r, sph_grip,
                 box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
-                prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere,
+                prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere, lb_c, lb_r, pair_end, bp_end,
                 order, stop_at_first, out):
     """out[b] = config Q[b] free; visits rows in `order`; optional early exit.
 
@@ -774,20 +842,75 @@ def _batch_free(Q, head, parent, X_PJ, joint_type, axis, var_index,
     env_aabb = np.empty((box_p.shape[0] + cyl_p.shape[0], 6))
     _env_aabbs(box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, env_aabb)
     near = np.empty(env_aabb.shape[0], dtype=np.int64)
+    LB = np.empty((parent.shape[0], 3))
+    data = (Q, T, C, PW, env_aabb, near, head, parent, X_PJ, joint_type, axis, var_index,
+            sph_link, sph_c, sph_r, sph_rs, pairs, q_lo, q_hi,
+            has_field, dist, origin, h, margin, pts, cell_keys, cell_start, tgt_c, tgt_r, sph_grip,
+            box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
+            prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere, lb_c, lb_r, pair_end, bp_end, LB)
     first = -1
     for n in range(order.shape[0]):
         b = order[n]
-        ok = _config_free(Q, b, head, parent, X_PJ, joint_type, axis, var_index,
-                          sph_link, sph_c, sph_r, sph_rs, pairs, q_lo, q_hi, T, C, PW,
-                          has_field, dist, origin, h, margin, pts, cell_keys, cell_start, tgt_c, tgt_r, sph_grip,
-                          box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
-                          prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere, env_aabb, near)
+        ok = _config_free(Q, b, data)
         out[b] = ok
         if not ok and first < 0:
             first = b
             if stop_at_first:
                 return first
     return first
+
+
+@numba.njit(cache=True)
+def _held_spheres(data, C0):
+    """Fills C0 (S, 3) with the sphere centres in the base frame for the
+    torso + arm data[0][0, 3:] and returns whether that torso + arm is inside
+    its limits and free of self-collision (both independent of the base)."""
+    Q, T = data[0], data[1]
+    sph_link, sph_c, q_lo, q_hi = data[12], data[13], data[17], data[18]
+    Q[0, 0] = Q[0, 1] = Q[0, 2] = 0.0
+    for j in range(3, Q.shape[1]):
+        if not (Q[0, j] >= q_lo[j] and Q[0, j] <= q_hi[j]):
+            return False
+    _link_transforms(Q, 0, data[6], data[7], data[8], data[9], data[10], data[11], T)
+    for s in range(sph_link.shape[0]):
+        li = sph_link[s]
+        px, py, pz = sph_c[s, 0], sph_c[s, 1], sph_c[s, 2]
+        for a in range(3):
+            C0[s, a] = T[li, a, 0] * px + T[li, a, 1] * py + T[li, a, 2] * pz + T[li, a, 3]
+    return _self_free(T, C0, data)
+
+
+@numba.njit(cache=True, inline="always")
+def _held_pose_free(x, y, th, data):
+    """Configuration (x, y, th, held torso + arm) free, from the tuple's
+    base-frame sphere centres data[49] (see `_held_spheres`): the base moves
+    them rigidly (planar joints: x, y, then yaw about z); only the
+    environment is tested."""
+    q_lo, q_hi = data[17], data[18]
+    if not (x >= q_lo[0] and x <= q_hi[0] and y >= q_lo[1] and y <= q_hi[1] and th >= q_lo[2]
+            and th <= q_hi[2]):
+        return False
+    C, C0 = data[2], data[49]
+    c = math.cos(th)
+    sn = math.sin(th)
+    for s in range(C0.shape[0]):
+        C[s, 0] = x + c * C0[s, 0] - sn * C0[s, 1]
+        C[s, 1] = y + sn * C0[s, 0] + c * C0[s, 1]
+        C[s, 2] = C0[s, 2]
+    return _env_free(C, data)
+
+
+@numba.njit(cache=True)
+def _drive_free(poses, data, out):
+    """out[m] = configuration (poses[m] (x, y, theta), held torso + arm) is
+    free, for a tuple of `CollisionChecker.base_pose_check_data` on a planar
+    base: self-collision and joint limits of the torso + arm were tested once
+    (data[50][0]); per pose only the environment."""
+    if not data[50][0]:
+        out[:] = False
+        return
+    for m in range(poses.shape[0]):
+        out[m] = _held_pose_free(poses[m, 0], poses[m, 1], poses[m, 2], data)
 
 
 @numba.njit(cache=True)
@@ -803,28 +926,24 @@ def _sphere_centers(Q, head, parent, X_PJ, joint_type, axis, var_index, sph_link
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def config_free_data(data):
     """Validity of data[0][0] (the (1, 11) scratch configuration of a tuple
     made by `CollisionChecker.base_pose_check_data`; numba-callable)."""
-    return _config_free(data[0], 0, data[6], data[7], data[8], data[9], data[10], data[11],
-                        data[12], data[13], data[14], data[15], data[16], data[17], data[18],
-                        data[1], data[2], data[3],
-                        data[19], data[20], data[21], data[22], data[23], data[24], data[25], data[26],
-                        data[27], data[28], data[29],
-                        data[30], data[31], data[32], data[33], data[34], data[35], data[36], data[37],
-                        data[38], data[39], data[40], data[41], data[42], data[43],
-                        data[4], data[5])
+    return _config_free(data[0], 0, data)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def base_pose_free_exact(x, y, theta, data):
     """Whole-body validity at base pose (x, y, theta) with the torso/arm of
     `CollisionChecker.base_pose_check_data` (a tuple it made; numba-callable)."""
+    th = (theta + math.pi) % (2.0 * math.pi) - math.pi
+    if data[50][1]:  # planar base: the held torso + arm's spheres moved rigidly
+        return data[50][0] and _held_pose_free(x, y, th, data)
     Q = data[0]
     Q[0, 0] = x
     Q[0, 1] = y
-    Q[0, 2] = (theta + math.pi) % (2.0 * math.pi) - math.pi
+    Q[0, 2] = th
     return config_free_data(data)
 
 
@@ -1169,7 +1288,12 @@ class CollisionChecker:
             link, kind, X, half, bp_prim, bp_sphere = self._body
             self._body = (link, kind, X, half, np.ascontiguousarray(bp_prim[keep_body]),
                           np.ascontiguousarray(bp_sphere[keep_body]))
+        self._group_self_tests()
+        self._self_cull = self._self_culling(self.sph_rs)
+        self._self_cull_bare = self._self_culling(self.base_radius)  # for `unpadded`
         self.lever = self._joint_levers()
+        self._planar = None
+        self._planar_base()
         self.set_environment(env)
 
     @staticmethod
@@ -1228,7 +1352,49 @@ class CollisionChecker:
         other.padding = self.config.extra_padding
         other.sph_r = self.base_radius + other.padding
         other.sph_rs = self.base_radius.copy()
+        other._self_cull = self._self_cull_bare
         return other
+
+    def _group_self_tests(self) -> None:
+        """Sorts the sphere pairs by their links and the body tests by
+        primitive and link, so that each group is contiguous."""
+        L = self.sph_link
+        if self.pairs.shape[0]:
+            order = np.lexsort((self.pairs[:, 1], self.pairs[:, 0], L[self.pairs[:, 1]], L[self.pairs[:, 0]]))
+            self.pairs = np.ascontiguousarray(self.pairs[order])
+        link, kind, X, half, bp_prim, bp_sphere = self._body
+        if bp_prim.shape[0]:
+            order = np.lexsort((bp_sphere, L[bp_sphere], bp_prim))
+            self._body = (link, kind, X, half, np.ascontiguousarray(bp_prim[order]),
+                          np.ascontiguousarray(bp_sphere[order]))
+
+    def _self_culling(self, sph_rs: np.ndarray) -> tuple:
+        """(lb_c (L, 3), lb_r (L,), pair_end (P,), bp_end (B,)):
+        per link a bounding sphere (link frame) of its spheres at their
+        self-collision radii `sph_rs` (-1: no spheres), and for every test the
+        end of its group (see `_group_self_tests`). A group is free when the
+        bounding spheres are apart, since every sphere lies inside its link's."""
+        n_links = self.tree.parent.shape[0]
+        L = self.sph_link
+        lb_c = np.zeros((n_links, 3))
+        lb_r = np.full(n_links, -1.0)
+        for li in np.unique(L):
+            m = L == li
+            c = self.sph_c[m]
+            lo, hi = c.min(axis=0), c.max(axis=0)
+            lb_c[li] = 0.5 * (lo + hi)
+            lb_r[li] = float(np.max(np.linalg.norm(c - lb_c[li], axis=1) + sph_rs[m])) + 1e-9
+
+        def ends(keys: np.ndarray) -> np.ndarray:
+            change = np.any(keys[1:] != keys[:-1], axis=1)
+            group = np.concatenate([[0], np.cumsum(change)])
+            return np.append(np.flatnonzero(change) + 1, keys.shape[0]).astype(np.int64)[group]
+
+        pair_end = ends(L[self.pairs]) if self.pairs.shape[0] else np.zeros(0, np.int64)
+        bp_prim, bp_sphere = self._body[4], self._body[5]
+        bp_end = (ends(np.column_stack([bp_prim, L[bp_sphere]])) if bp_prim.shape[0]
+                  else np.zeros(0, np.int64))
+        return np.ascontiguousarray(lb_c), lb_r, pair_end, bp_end
 
     def _args(self):
         t = self.tree
@@ -1237,12 +1403,14 @@ class CollisionChecker:
                 self.sph_link, self.sph_c, self.sph_r, self.sph_rs, self.pairs, self.q_lo, self.q_hi,
                 *self._field,
                 e.box_p, e.box_R, e.box_half, e.cyl_p, e.cyl_R, e.cyl_radius, e.cyl_half_length,
-                self.check_env, *self._body)
+                self.check_env, *self._body, *self._self_cull)
 
     def base_pose_check_data(self, torso_arm: np.ndarray) -> tuple:
         """The arguments of `base_pose_free_exact` for the torso + arm (8,)
         held fixed, over the current environment (scratch arrays included:
-        one user at a time)."""
+        one user at a time). It ends with the torso + arm's sphere centres in
+        the base frame and (limits and self-collision free, planar base):
+        the torso + arm must not be changed afterwards for those checks."""
         torso_arm = np.asarray(torso_arm, dtype=float).reshape(layout.NQ - 3)
         Q = np.zeros((1, layout.NQ))
         Q[0, 3:] = torso_arm
@@ -1253,7 +1421,13 @@ class CollisionChecker:
         env_aabb = np.empty((e.box_p.shape[0] + e.cyl_p.shape[0], 6))
         _env_aabbs(e.box_p, e.box_R, e.box_half, e.cyl_p, e.cyl_R, e.cyl_radius, e.cyl_half_length, env_aabb)
         near = np.empty(env_aabb.shape[0], dtype=np.int64)
-        return (Q, T, C, PW, env_aabb, near) + tuple(self._args())
+        data = (Q, T, C, PW, env_aabb, near) + tuple(self._args()) + (np.empty((self.tree.parent.shape[0], 3)),)
+        C0 = np.empty_like(C)
+        flags = np.array([False, self._planar_base()])
+        data += (C0, flags)
+        flags[0] = _held_spheres(data, C0)
+        Q[0, 3:] = torso_arm
+        return data
 
     def is_free(self, Q: np.ndarray) -> np.ndarray:
         """Validity (B,) of configurations Q (B, 11) (no early exit)."""
@@ -1261,6 +1435,35 @@ class CollisionChecker:
         out = np.zeros(Q.shape[0], dtype=np.bool_)
         _batch_free(Q, *self._args(), np.arange(Q.shape[0], dtype=np.int64), False, out)
         return out
+
+    def drive_free(self, poses: np.ndarray, torso_arm: np.ndarray) -> np.ndarray:
+        """Validity (M,) of the configurations (poses[m], torso_arm): the base
+        at poses (M, 3) carrying the torso + arm (8,) held fixed. The same
+        verdicts as `is_free` on those configurations, but forward
+        kinematics and self-collision once: per pose only the spheres moved
+        rigidly and tested against the environment."""
+        poses = np.ascontiguousarray(np.asarray(poses, dtype=float).reshape(-1, 3))
+        torso_arm = np.asarray(torso_arm, dtype=float).reshape(layout.NQ - 3)
+        if not self._planar_base():
+            return self.is_free(np.concatenate([poses, np.repeat(torso_arm[None], poses.shape[0], axis=0)], axis=1))
+        out = np.zeros(poses.shape[0], dtype=np.bool_)
+        _drive_free(poses, self.base_pose_check_data(torso_arm), out)
+        return out
+
+    def _planar_base(self) -> bool:
+        """Whether the base joints move every sphere rigidly in the plane:
+        c(x, y, theta) = (x, y) + R_z(theta) c(0, 0, 0) (checked once)."""
+        if self._planar is None:
+            rng = np.random.default_rng(0)
+            Q = rng.uniform(layout.SAMPLE_LOWER, layout.SAMPLE_UPPER, (4, layout.NQ))
+            Q0 = Q.copy()
+            Q0[:, :3] = 0.0
+            c, c0 = self.sphere_centers(Q), self.sphere_centers(Q0)
+            cos, sin = np.cos(Q[:, 2])[:, None], np.sin(Q[:, 2])[:, None]
+            x = Q[:, 0:1] + cos * c0[..., 0] - sin * c0[..., 1]
+            y = Q[:, 1:2] + sin * c0[..., 0] + cos * c0[..., 1]
+            self._planar = bool(np.allclose(c, np.stack([x, y, c0[..., 2]], axis=-1), rtol=0.0, atol=1e-12))
+        return self._planar
 
     def first_collision(self, Q: np.ndarray, order: np.ndarray | None = None) -> int:
         """Index of a configuration of Q in collision (coarse-to-fine search), or -1."""
@@ -1341,14 +1544,31 @@ def densify(path: np.ndarray, checker: CollisionChecker, resolution: float | Non
     if path.shape[0] < 2:
         return path.copy()
     res = checker.config.motion_resolution if resolution is None else resolution
-    d = checker.sphere_displacement_bound(np.diff(path, axis=0))
-    counts = np.maximum(np.ceil(d / res).astype(np.int64), 1)
-    # Segment index and fraction of every output state after the first.
-    seg = np.repeat(np.arange(counts.shape[0]), counts)
-    ends = np.cumsum(counts)
-    k = np.arange(1, ends[-1] + 1) - np.repeat(ends - counts, counts)
-    frac = (k / np.repeat(counts, counts))[:, None]
-    out = np.empty((ends[-1] + 1, path.shape[1]))
+    return _densify(np.ascontiguousarray(path), np.ascontiguousarray(checker.lever, dtype=float), float(res))
+
+
+@numba.njit(cache=True)
+def _densify(path, lever, res):
+    """`densify`: per segment max(ceil(bound / res), 1) steps, where bound is
+    `CollisionChecker.sphere_displacement_bound` (planar x, y norm plus the
+    levers of the other coordinates)."""
+    n, dim = path.shape
+    counts = np.empty(n - 1, np.int64)
+    total = 0
+    for k in range(n - 1):
+        d = math.hypot(path[k + 1, 0] - path[k, 0], path[k + 1, 1] - path[k, 1])
+        for j in range(2, dim):
+            d += abs(path[k + 1, j] - path[k, j]) * lever[j]
+        counts[k] = max(int(math.ceil(d / res)), 1)
+        total += counts[k]
+    out = np.empty((total + 1, dim))
     out[0] = path[0]
-    out[1:] = path[seg] + frac * (path[seg + 1] - path[seg])
+    m = 1
+    for k in range(n - 1):
+        c = counts[k]
+        for i in range(1, c + 1):
+            f = i / c
+            for a in range(dim):
+                out[m, a] = path[k, a] + f * (path[k + 1, a] - path[k, a])
+            m += 1
     return out

@@ -143,30 +143,30 @@ class HybridAStarConfig:
 
 
 @numba.njit(cache=True)
-def _poses_free(poses, layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact, exact, exact_zone,
-                slack):
-    """True when every pose (M, 3) is free (see the module docstring).
+def _poses_2d(poses, layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact, has_exact, slack, need):
+    """The 2D part of `_poses_free`: False when some pose (M, 3) is blocked;
+    else True, with need[k] = 0 (pose k free), 1 (to check exactly with the
+    travel arm), 2 + e (exactly with zone e's own arm). Without `has_exact`
+    nothing is left to an exact check (zone poses are free then).
 
-    Poses within exempt_r of exempt point e (E, 2) are checked with the
-    `exact` whole-body check (travel arm) where exempt_exact[e] == 1, with
-    exact_zone[e] (the start's/goal's own arm) where it is 2; `exact` may be
-    None (no zones then).
-    """
+    (The exact checks' data tuples are not passed here: a compiled call
+    costs ~25 ns per array in a tuple argument, 50 per tuple.)"""
     nx = layers.shape[1]
     ny = layers.shape[2]
     for k in range(poses.shape[0]):
         x, y, th = poses[k, 0], poses[k, 1], poses[k, 2]
+        need[k] = 0
         zone = -1
         for e in range(exempt.shape[0]):
             if (x - exempt[e, 0]) ** 2 + (y - exempt[e, 1]) ** 2 < exempt_r * exempt_r:
                 zone = e
                 break
         if zone >= 0:
-            if exact is not None:
-                if exempt_exact[zone] == 1 and not base_pose_free_exact(x, y, th, exact):
-                    return False
-                if exempt_exact[zone] == 2 and not base_pose_free_exact(x, y, th, exact_zone[zone]):
-                    return False
+            if has_exact:
+                if exempt_exact[zone] == 1:
+                    need[k] = 1
+                elif exempt_exact[zone] == 2:
+                    need[k] = 2 + zone
             continue
         c = math.cos(th)
         s = math.sin(th)
@@ -182,11 +182,49 @@ def _poses_free(poses, layers, origin, h, margin, discs, band, exempt, exempt_r,
             continue
         # Blocked in 2D by less than `slack`: the discs overestimate the
         # robot, let the exact check decide.
-        if exact is not None and worst < slack:
-            if base_pose_free_exact(x, y, th, exact):
-                continue
+        if has_exact and worst < slack:
+            need[k] = 1
+            continue
         return False
     return True
+
+
+@numba.njit(cache=True)
+def _poses_exact(poses, need, exact, exact_zone):
+    """The exact checks `_poses_2d` left (need[k] > 0)."""
+    for k in range(poses.shape[0]):
+        if need[k] == 0:
+            continue
+        x, y, th = poses[k, 0], poses[k, 1], poses[k, 2]
+        if need[k] == 1:
+            if not base_pose_free_exact(x, y, th, exact):
+                return False
+        elif need[k] == 2:
+            if not base_pose_free_exact(x, y, th, exact_zone[0]):
+                return False
+        elif not base_pose_free_exact(x, y, th, exact_zone[1]):
+            return False
+    return True
+
+
+@numba.njit(cache=True)
+def _poses_free(poses, layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact, exact, exact_zone,
+                slack):
+    """True when every pose (M, 3) is free (see the module docstring).
+
+    Poses within exempt_r of exempt point e (E, 2) are checked with the
+    `exact` whole-body check (travel arm) where exempt_exact[e] == 1, with
+    exact_zone[e] (the start's/goal's own arm) where it is 2; `exact` may be
+    None (no zones then). Inside the search, `_poses_2d` first and
+    `_poses_exact` only where needed.
+    """
+    need = np.empty(poses.shape[0], np.int64)
+    if not _poses_2d(poses, layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact,
+                     exact is not None, slack, need):
+        return False
+    if exact is None:
+        return True
+    return _poses_exact(poses, need, exact, exact_zone)
 
 
 @numba.njit(cache=True)
@@ -219,16 +257,35 @@ def _dijkstra_2d(free, gi, gj, h):
 
 
 @numba.njit(cache=True)
+def _footprint_free(layers, margin, thr, band, out):
+    """out &= (layers[band[k]] - margin > thr[k] for every disc k)."""
+    for i in range(out.shape[0]):
+        for j in range(out.shape[1]):
+            for k in range(thr.shape[0]):
+                if not layers[band[k], i, j] - margin > thr[k]:
+                    out[i, j] = False
+                    break
+    return out
+
+
+@numba.njit(cache=True)
 def _coarse_free(free, factor):
     """A grid `factor` times coarser: a coarse cell is free when any of its cells is."""
     nx, ny = free.shape
     cx = (nx + factor - 1) // factor
     cy = (ny + factor - 1) // factor
     out = np.zeros((cx, cy), dtype=np.bool_)
-    for i in range(nx):
-        for j in range(ny):
-            if free[i, j]:
-                out[i // factor, j // factor] = True
+    for a in range(cx):
+        for b in range(cy):
+            found = False
+            for i in range(a * factor, min((a + 1) * factor, nx)):
+                for j in range(b * factor, min((b + 1) * factor, ny)):
+                    if free[i, j]:
+                        found = True
+                        break
+                if found:
+                    break
+            out[a, b] = found
     return out
 
 
@@ -255,6 +312,14 @@ def _prim_poses(x, y, th, kappa, length, dth, n, out):
             out[k, 1] = y - (math.cos(nth) - math.cos(th)) / kappa
             out[k, 2] = nth
     return n
+
+
+@numba.njit(cache=True)
+def _any(need, m):
+    for k in range(m):
+        if need[k] != 0:
+            return True
+    return False
 
 
 @numba.njit(cache=True)
@@ -285,6 +350,8 @@ def _search(start, goal, layers, origin, h, margin, discs, band, exempt, exempt_
     g_of[0] = 0.0
     n_nodes = 1
     heap = [(0.0, 0)]
+    has_exact = exact is not None
+    need = np.empty(256, np.int64)
     buf = np.empty((64, 3))
     diag = math.sqrt(2.0)
     expansions = 0
@@ -311,7 +378,12 @@ def _search(start, goal, layers, origin, h, margin, discs, band, exempt, exempt_
             for k in range(lengths.shape[0]):
                 backward -= radius * min(lengths[k], 0.0)
             path = rs.sample_path(poses[idx], types, lengths, radius, check_step)
-            if backward <= max_reverse and _poses_free(path, layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact, exact, exact_zone, slack):
+            if path.shape[0] > need.shape[0]:
+                need = np.empty(2 * path.shape[0], np.int64)
+            if backward <= max_reverse and _poses_2d(
+                    path, layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact, has_exact, slack,
+                    need) and (not has_exact or not _any(need, path.shape[0])
+                               or _poses_exact(path, need, exact, exact_zone)):
                 return 1, idx, poses[:n_nodes], parents[:n_nodes], prim_of[:n_nodes], types, lengths, expansions
         for p in range(prims.shape[0]):
             m = _prim_poses(x, y, th, prims[p, 0], prims[p, 1], prims[p, 2], prim_n[p], buf)
@@ -321,8 +393,10 @@ def _search(start, goal, layers, origin, h, margin, discs, band, exempt, exempt_
             at = int(math.floor((_wrap(qt) + math.pi) / (2.0 * math.pi) * theta_bins)) % theta_bins
             if ai < 0 or aj < 0 or ai >= gx or aj >= gy or closed[ai, aj, at]:
                 continue
-            if not _poses_free(buf[:m], layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact,
-                               exact, exact_zone, slack):
+            if not _poses_2d(buf[:m], layers, origin, h, margin, discs, band, exempt, exempt_r, exempt_exact,
+                             has_exact, slack, need):
+                continue
+            if has_exact and _any(need, m) and not _poses_exact(buf[:m], need, exact, exact_zone):
                 continue
             # heuristic: obstacle-aware 2D distance on the coarse grid (minus
             # its grid slack) or Euclid
@@ -406,6 +480,7 @@ class HybridAStar:
         self._exempt_exact = np.zeros(0, np.bool_)
         self._exempt_r = 0.0
         self._free = None
+        self._coarse = None
 
     def poses_free(self, poses: np.ndarray) -> bool:
         cm = self.costmap
@@ -427,11 +502,8 @@ class HybridAStar:
     def path_cost(self, poses: np.ndarray) -> float:
         """Length of a sampled base path [m], backward steps counted
         `reverse_penalty` times, plus 0.3 m per radian turned."""
-        d = np.diff(poses[:, :2], axis=0)
-        step = np.hypot(d[:, 0], d[:, 1])
-        backward = d[:, 0] * np.cos(poses[:-1, 2]) + d[:, 1] * np.sin(poses[:-1, 2]) < 0.0
-        weight = np.where(backward, self.config.reverse_penalty, 1.0)
-        return float(np.sum(step * weight)) + 0.3 * float(np.sum(np.abs(np.diff(poses[:, 2]))))
+        poses = np.ascontiguousarray(poses, float)
+        return float(_path_cost(poses, 0, poses.shape[0] - 1, self.config.reverse_penalty))
 
     def _make_primitives(self):
         """Rows (kappa, signed length, in-place dtheta, cost [s]) and check counts."""
@@ -543,10 +615,8 @@ class HybridAStar:
         every disc centre lies within |offset| + h of the cell centre)."""
         if self._free is None:
             cm = self.costmap
-            free = np.ones(cm.shape, bool)
-            for (x, y, r), b in zip(self._discs, self._band):
-                free &= cm.free_mask(r - math.hypot(x, y) - cm.resolution - self._slack, int(b))
-            self._free = free
+            thr = np.array([r - math.hypot(x, y) - cm.resolution - self._slack for x, y, r in self._discs])
+            self._free = _footprint_free(self._layers, cm.margin, thr, self._band, np.ones(cm.shape, bool))
         return self._free
 
     def _heuristic_grid(self, free: np.ndarray, goal: np.ndarray) -> tuple[np.ndarray, int, float]:
@@ -559,28 +629,39 @@ class HybridAStar:
         (cell centres sit up to `slack` from their coarse cell's centre)."""
         cm = self.costmap
         factor = max(int(round(self.config.heuristic_cell / cm.resolution)), 1)
-        coarse = _coarse_free(free, factor)
+        if free is self._free:  # no start/goal zones: the same for every goal
+            if self._coarse is None or self._coarse[0] != factor:
+                self._coarse = (factor, _coarse_free(free, factor))
+            coarse = self._coarse[1]
+        else:
+            coarse = _coarse_free(free, factor)
         gi, gj = cm.cell(goal)
         hc = factor * cm.resolution
         d = _dijkstra_2d(coarse, gi // factor, gj // factor, hc)
         return d, factor, 2.0 * math.sqrt(2.0) * 0.5 * (factor - 1) * cm.resolution + math.sqrt(2.0) * hc
 
     def shortcut(self, poses: np.ndarray, rng: np.random.Generator, iterations: int = 20) -> np.ndarray:
-        """Randomized shortcutting of a base path with Reeds-Shepp connections."""
+        """Randomized shortcutting of a base path with Reeds-Shepp connections
+        (the random pairs of poses drawn up front: one generator call)."""
         R = self.config.turning_radius
-        for _ in range(iterations):
+        w = self.config.reverse_penalty
+        poses = np.ascontiguousarray(poses, float)
+        u = rng.random((iterations, 2))
+        for it in range(iterations):
             n = poses.shape[0]
             if n < 4:
                 break
-            i, j = sorted(rng.choice(n, 2, replace=False))
+            # Two distinct indices, uniformly (as rng.choice(n, 2, replace=False)).
+            i, j = int(u[it, 0] * n), int(u[it, 1] * (n - 1))
+            j += j >= i
+            i, j = min(i, j), max(i, j)
             if j - i < 3:
                 continue
             a, b = poses[i], poses[j]
-            types, lengths, total = rs.shortest_path(a, b, R, self.config.reverse_penalty)
-            old = self.path_cost(poses[i:j + 1])
+            types, lengths, total = rs.shortest_path(a, b, R, w)
             seg = rs.sample_path(a, types, lengths, R, self.config.check_step)
-            new = self.path_cost(seg)
-            if new >= old - 1e-6 or not self.poses_free(seg):
+            if (_path_cost(seg, 0, seg.shape[0] - 1, w) >= _path_cost(poses, i, j, w) - 1e-6
+                    or not self.poses_free(seg)):
                 continue
             # keep theta continuous: RS starts at a's unwrapped theta; shift the rest
             end_shift = seg[-1, 2] - b[2]
@@ -589,3 +670,17 @@ class HybridAStar:
             seg[-1, 2] = b[2] + end_shift
             poses = np.concatenate([poses[:i], seg, rest])
         return poses
+
+
+@numba.njit(cache=True)
+def _path_cost(poses, i, j, reverse_weight):
+    """`HybridAStar.path_cost` of poses[i..j]."""
+    cost = 0.0
+    for k in range(i, j):
+        dx = poses[k + 1, 0] - poses[k, 0]
+        dy = poses[k + 1, 1] - poses[k, 1]
+        step = math.sqrt(dx * dx + dy * dy)
+        if dx * math.cos(poses[k, 2]) + dy * math.sin(poses[k, 2]) < 0.0:
+            step *= reverse_weight
+        cost += step + 0.3 * abs(poses[k + 1, 2] - poses[k, 2])
+    return cost

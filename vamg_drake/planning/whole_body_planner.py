@@ -18,10 +18,12 @@ One attempt:
      unfold over the last part (or before approaching holding the goal
      arm), along the straight joint-space line or the arm roadmap's
      self-collision-free path to the travel pose (`ArmRoadmap`), no search;
-     (c) RRT-Connect over (progress along the base path, torso + arm);
-     (d) as (b) with fixed-base searches at the start placement and at or
-     before the goal (the roadmap searched lazily, then RRT-Connect);
-     (e) fold/unfold with fixed-base searches for other carry poses.
+     (c) RRT-Connect over (progress along the base path, torso + arm), for
+     its first `along_path_first_iterations`; (d) as (b) with fixed-base
+     searches at the start placement and at or before the goal (the
+     roadmap searched lazily, then RRT-Connect); (c) resumed up to its
+     iteration cap; (e) fold/unfold with fixed-base searches for other
+     carry poses.
   3. Refinement of the fixed-base arm pieces: randomized shortcutting and
      B-spline smoothing (kept only where valid, after its own dense check);
      the checked pieces joined (they must meet exactly) and re-interpolated
@@ -57,6 +59,7 @@ import dataclasses
 import math
 import time
 
+import numba
 import numpy as np
 
 from vamg_drake.planning import smoothing
@@ -65,7 +68,7 @@ from vamg_drake.planning.base_costmap import base_costmap
 from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment, densify
 from vamg_drake.planning.hybrid_astar import Footprint2D, HybridAStar, HybridAStarConfig
 from vamg_drake.planning.trajectory import TimedTrajectory
-from vamg_drake.planning.whole_body_rrt import KernelRRTConfig, WholeBodySearchSpace
+from vamg_drake.planning.whole_body_rrt import KernelRRTConfig, RRTConnectSearch, WholeBodySearchSpace
 from vamg_drake.robot import layout
 
 
@@ -100,6 +103,9 @@ class PlannerConfig:
         bspline_samples: samples of the smoothed fixed-base arm paths.
         rrt_step: RRT-Connect extension step (max-norm) [rad].
         rrt_max_iterations: RRT-Connect iteration limit per arm motion.
+        along_path_first_iterations: iterations of the along-path search (c)
+            before the fixed-base searches (d) are tried; it resumes after
+            them up to `rrt_max_iterations`.
         placement_fractions: where along the base path (fraction of its
             length) the arm may start unfolding; 1.0 = at the goal placement.
         fold_fractions: fractions of the base path over which the arm may fold
@@ -136,6 +142,7 @@ class PlannerConfig:
     bspline_samples: int = 25
     rrt_step: float = 0.6
     rrt_max_iterations: int = 400
+    along_path_first_iterations: int = 128
     placement_fractions: list[float] = dataclasses.field(default_factory=lambda: [0.5, 0.7, 0.85, 1.0])
     fold_fractions: list[float] = dataclasses.field(default_factory=lambda: [0.15, 0.3, 0.0])
     hybrid_astar_max_expansions: int = 8000
@@ -193,6 +200,82 @@ def _wrap_arm(arm: np.ndarray) -> np.ndarray:
     return out
 
 
+@numba.njit(cache=True)
+def _densify_poses(poses, lever_theta, res):
+    """`densify` of base poses (M, 3) with the torso + arm held (their sphere
+    displacement bound is the planar step + |d theta| * lever_theta): the
+    dense poses (N, 3) and the dense index (M,) of every pose."""
+    m = poses.shape[0]
+    counts = np.empty(m - 1, np.int64)
+    index = np.zeros(m, np.int64)
+    for k in range(m - 1):
+        d = math.hypot(poses[k + 1, 0] - poses[k, 0], poses[k + 1, 1] - poses[k, 1]) \
+            + abs(poses[k + 1, 2] - poses[k, 2]) * lever_theta
+        counts[k] = max(int(math.ceil(d / res)), 1)
+        index[k + 1] = index[k] + counts[k]
+    out = np.empty((index[m - 1] + 1, 3))
+    out[0] = poses[0]
+    n = 1
+    for k in range(m - 1):
+        c = counts[k]
+        for i in range(1, c + 1):
+            f = i / c
+            for a in range(3):
+                out[n, a] = poses[k, a] + f * (poses[k + 1, a] - poses[k, a])
+            n += 1
+    return out, index
+
+
+@numba.njit(cache=True)
+def _sync_states(poses, W, v_max, w_max):
+    """`WholeBodyPlanner._synchronized_path` for M >= 2 poses: the states at
+    the union of the base's knots (travel-time fractions) and the arm's
+    (fractions of its L1 length), each side interpolated linearly."""
+    m, k = poses.shape[0], W.shape[0]
+    sa = np.zeros(k)
+    for i in range(1, k):
+        sa[i] = sa[i - 1]
+        for a in range(W.shape[1]):
+            sa[i] += abs(W[i, a] - W[i - 1, a])
+    sb = np.zeros(m)
+    for i in range(1, m):
+        t = max(math.hypot(poses[i, 0] - poses[i - 1, 0], poses[i, 1] - poses[i - 1, 1]) / v_max,
+                abs(poses[i, 2] - poses[i - 1, 2]) / w_max)
+        sb[i] = sb[i - 1] + t
+    for knots, n in ((sa, k), (sb, m)):
+        total = knots[n - 1]
+        for i in range(n):
+            knots[i] = knots[i] / total if total > 0 else (i / (n - 1) if n > 1 else 0.0)
+    s = np.union1d(sa, sb)
+    out = np.empty((s.shape[0], 3 + W.shape[1]))
+    _interp_rows(s, sb, poses, out, 0)
+    _interp_rows(s, sa, W, out, 3)
+    return out
+
+
+@numba.njit(cache=True)
+def _interp_rows(s, knots, values, out, col):
+    """out[:, col:col + d] = values (n, d) interpolated at s (sorted, within
+    the increasing knots (n,)); a knot gets its own row exactly."""
+    n = knots.shape[0]
+    j = 0
+    for i in range(s.shape[0]):
+        x = s[i]
+        while j < n - 2 and knots[j + 1] <= x:
+            j += 1
+        if n == 1 or x <= knots[j]:
+            for a in range(values.shape[1]):
+                out[i, col + a] = values[j, a]
+        elif x >= knots[j + 1]:
+            for a in range(values.shape[1]):
+                out[i, col + a] = values[j + 1, a]
+        else:
+            f = (x - knots[j]) / (knots[j + 1] - knots[j])
+            for a in range(values.shape[1]):
+                out[i, col + a] = values[j, a] + f * (values[j + 1, a] - values[j, a])
+    return out
+
+
 class _HeldArm:
     """The base driving along poses (M, 3) with the torso + arm held at `arm`
     (8,): one batch check of the whole drive, then any stretch of it is
@@ -203,16 +286,18 @@ class _HeldArm:
         """Only poses first..last (default: all) are checked and may be asked for."""
         checker = planner.checker
         self._first = first
+        arm = np.asarray(arm, float)
         poses = poses[first: None if last is None else last + 1]
-        self._Q = np.concatenate([poses, np.repeat(np.asarray(arm, float)[None], poses.shape[0], axis=0)], axis=1)
+        self._Q = np.concatenate([poses, np.repeat(arm[None], poses.shape[0], axis=0)], axis=1)
         if poses.shape[0] < 2:
             self._index = np.zeros(1, np.int64)
-            self._bad = np.cumsum(~checker.is_free(self._Q))
+            self._bad = np.cumsum(~checker.drive_free(poses, arm))
             return
-        d = checker.sphere_displacement_bound(np.diff(self._Q, axis=0))
-        counts = np.maximum(np.ceil(d / checker.config.motion_resolution).astype(np.int64), 1)
-        self._index = np.concatenate([[0], np.cumsum(counts)])  # dense index of each pose (as `densify`)
-        self._bad = np.cumsum(~checker.is_free(densify(self._Q, checker)))
+        # The dense states of `densify` (the arm is held: only the base moves),
+        # and the dense index of each pose.
+        dense, self._index = _densify_poses(np.ascontiguousarray(poses, float), float(checker.lever[2]),
+                                            float(checker.config.motion_resolution))
+        self._bad = np.cumsum(~checker.drive_free(dense, arm))
 
     def free(self, a: int, b: int) -> bool:
         """The drive from pose a to pose b (a <= b) is free."""
@@ -560,17 +645,27 @@ class WholeBodyPlanner:
         if path is not None:
             timings["arm"] += 1e3 * (time.perf_counter() - ta)
             return self._refine(path, timings, rng, deadline), "", ""
-        # (c) RRT-Connect over (progress along the base path, torso + arm).
-        path = self._along_base_path(poses, qs[3:], qg[3:], rng, deadline)
+        # (c) RRT-Connect over (progress along the base path, torso + arm),
+        # first for `along_path_first_iterations` (it usually connects within
+        # a few dozen iterations; the hard problems hit the cap at ~70 us per
+        # iteration)...
+        along = {}
+        path = self._along_base_path(poses, qs[3:], qg[3:], rng, deadline, along,
+                                     self.config.along_path_first_iterations)
         if path is not None:
             timings["arm"] += 1e3 * (time.perf_counter() - ta)
             return self._refine([path], timings, rng, deadline), "", ""
-        # (d) the same with fixed-base arm searches (lazy roadmap, then
+        # (d) the same as (b) with fixed-base arm searches (lazy roadmap, then
         # RRT-Connect) at the start placement and at or before the goal.
         path = self._via_carry(poses, qs, qg, travel, rng, deadline)
         if path is not None:
             timings["arm"] += 1e3 * (time.perf_counter() - ta)
             return self._refine(path, timings, rng, deadline), "", ""
+        # ... (c) resumed up to its iteration cap.
+        path = self._along_base_path(poses, qs[3:], qg[3:], rng, deadline, along)
+        if path is not None:
+            timings["arm"] += 1e3 * (time.perf_counter() - ta)
+            return self._refine([path], timings, rng, deadline), "", ""
         # (e) fold into another carry pose, drive, unfold, with fixed-base
         # arm searches at the start/goal placements: the goal arm (unfold at
         # the start), the start arm (unfold at the goal). Roll joints are
@@ -608,6 +703,7 @@ class WholeBodyPlanner:
                 raise _Timeout()
 
         roadmap = self._arm_roadmap() if self._is_travel(carry) else None
+        cum = self._fraction_cum(poses)
         pieces = []
         fold_k = 0
         last = poses.shape[0] - 1
@@ -618,7 +714,7 @@ class WholeBodyPlanner:
             for W in folds:
                 for f in cfg.fold_fractions:
                     check_deadline()
-                    k = self._index_at_fraction(poses, f) if f > 0.0 else 0
+                    k = self._index_at_fraction(poses, f, cum) if f > 0.0 else 0
                     Qf = self._synchronized_path(poses[: k + 1], W)
                     if free(Qf):
                         fold, fold_k = [Qf], k
@@ -627,7 +723,7 @@ class WholeBodyPlanner:
                         continue
                     # Or drive off holding the start arm, then fold there.
                     if depart is None:
-                        k_max = self._index_at_fraction(poses, max(cfg.fold_fractions))
+                        k_max = self._index_at_fraction(poses, max(cfg.fold_fractions), cum)
                         depart = _HeldArm(self, poses, qs[3:], last=k_max)
                     Qf = self._synchronized_path(poses[k: k + 1], W)
                     if depart.free(0, k) and free(Qf):
@@ -648,7 +744,7 @@ class WholeBodyPlanner:
         fractions = cfg.placement_fractions if needs_unfold else (1.0,)
         hold = _HeldArm(self, poses, carry, first=fold_k)
         approach = None  # holding the goal arm into the goal
-        k_min = max(self._index_at_fraction(poses, min(fractions)), fold_k)
+        k_min = max(self._index_at_fraction(poses, min(fractions), cum), fold_k)
 
         def drive_to(k):
             return hold.states(fold_k, k) if hold.free(fold_k, k) else None
@@ -656,7 +752,7 @@ class WholeBodyPlanner:
         for W in unfolds:
             for f in fractions:
                 check_deadline()
-                k = last if f >= 1.0 else max(self._index_at_fraction(poses, f), fold_k)
+                k = last if f >= 1.0 else max(self._index_at_fraction(poses, f, cum), fold_k)
                 drive = drive_to(k)
                 if drive is None:
                     continue
@@ -686,7 +782,7 @@ class WholeBodyPlanner:
             if approach is None:
                 approach = _HeldArm(self, poses, qg[3:], first=k_min)
             for f in fractions:
-                k = max(self._index_at_fraction(poses, f), fold_k)
+                k = max(self._index_at_fraction(poses, f, cum), fold_k)
                 if k >= last or not hold.free(fold_k, k) or not approach.free(k, last):
                     continue
                 check_deadline()
@@ -737,28 +833,26 @@ class WholeBodyPlanner:
         travel time; arm: length): the states at every base pose and every
         waypoint, so that the straight segments between them are the motion.
         One pose: the arm moves at that fixed base."""
-        seg = np.abs(np.diff(W, axis=0)).sum(axis=1)
-        sa = np.concatenate([[0.0], np.cumsum(seg)])
-        sa = sa / sa[-1] if sa[-1] > 0 else np.linspace(0.0, 1.0, W.shape[0])
+        poses = np.ascontiguousarray(poses, float)
+        W = np.ascontiguousarray(W, float)
         if poses.shape[0] == 1:
             return np.concatenate([np.repeat(poses, W.shape[0], axis=0), W], axis=1)
-        d = np.diff(poses, axis=0)
-        t = np.maximum(np.hypot(d[:, 0], d[:, 1]) / layout.TRACKER_BASE_V,
-                       np.abs(d[:, 2]) / layout.TRACKER_BASE_W)
-        sb = np.concatenate([[0.0], np.cumsum(t)])
-        sb = sb / sb[-1] if sb[-1] > 0 else np.linspace(0.0, 1.0, poses.shape[0])
-        s = np.union1d(sa, sb)
-        base = np.column_stack([np.interp(s, sb, poses[:, i]) for i in range(3)])
-        arm = np.column_stack([np.interp(s, sa, W[:, i]) for i in range(W.shape[1])])
-        return np.concatenate([base, arm], axis=1)
+        return _sync_states(poses, W, layout.TRACKER_BASE_V, layout.TRACKER_BASE_W)
 
     @staticmethod
-    def _index_at_fraction(poses: np.ndarray, f: float) -> int:
-        d = np.hypot(*np.diff(poses[:, :2], axis=0).T) + 0.3 * np.abs(np.diff(poses[:, 2]))
-        cum = np.concatenate([[0.0], np.cumsum(d)])
+    def _index_at_fraction(poses: np.ndarray, f: float, cum: np.ndarray | None = None) -> int:
+        """The first pose at fraction f of the path's length (`_fraction_cum`,
+        given or computed)."""
+        cum = WholeBodyPlanner._fraction_cum(poses) if cum is None else cum
         if cum[-1] <= 0:
             return poses.shape[0] - 1
         return int(np.clip(np.searchsorted(cum, f * cum[-1]), 0, poses.shape[0] - 1))
+
+    @staticmethod
+    def _fraction_cum(poses: np.ndarray) -> np.ndarray:
+        """Cumulative length along poses (M, 3): metres + 0.3 m per radian."""
+        d = np.hypot(*np.diff(poses[:, :2], axis=0).T) + 0.3 * np.abs(np.diff(poses[:, 2]))
+        return np.concatenate([[0.0], np.cumsum(d)])
 
     @staticmethod
     def _synchronized(poses: np.ndarray, arm_a: np.ndarray, arm_b: np.ndarray) -> np.ndarray:
@@ -773,36 +867,46 @@ class WholeBodyPlanner:
         return np.concatenate([poses, arm], axis=1)
 
     def _along_base_path(self, poses: np.ndarray, arm_a: np.ndarray, arm_b: np.ndarray, rng,
-                         deadline) -> np.ndarray | None:
+                         deadline, search: dict, iterations: int | None = None) -> np.ndarray | None:
         """Whole-body states (N, 11) that follow the base path `poses` while
         the torso/arm moves from arm_a to arm_b, or None.
 
         RRT-Connect over x = (u, torso + arm) where u is the base's progress
         along the path in seconds of travel at the tracker's speed limits (it
         may go back: the base then reverses along its own curve); see
-        `WholeBodySearchSpace.along_path`.
+        `WholeBodySearchSpace.along_path`. The search runs `iterations` more
+        iterations (None: up to the cap) and is kept in `search` (a dict, empty
+        at first) so that a later call resumes it.
         """
-        space = WholeBodySearchSpace.along_path(self.checker, poses)
-        total = space.duration
-        if total <= 0.0:
+        if "rrt" not in search:
+            space = WholeBodySearchSpace.along_path(self.checker, poses)
+            total = space.duration
+            if total <= 0.0:
+                search["rrt"] = None
+                return None
+            lo = np.concatenate([[0.0], layout.SAMPLE_LOWER[3:]])
+            hi = np.concatenate([[total], layout.SAMPLE_UPPER[3:]])
+            c = np.concatenate([[False], layout.IS_CONTINUOUS[3:]])
+            mid = 0.5 * np.concatenate([[0.0], arm_a + arm_b])
+            lo = np.where(c, mid - np.pi, lo)
+            hi = np.where(c, mid + np.pi, hi)
+            w = np.concatenate([[1.0, 5.0], np.ones(7)])  # base seconds; torso metres weigh more
+            xa = np.concatenate([[0.0], arm_a])
+            xb = np.concatenate([[total], arm_b])
+            search["rrt"] = RRTConnectSearch(space, xa, xb, lo, hi, w, rng, self._rrt_config())
+        rrt = search["rrt"]
+        if rrt is None:
             return None
-        lo = np.concatenate([[0.0], layout.SAMPLE_LOWER[3:]])
-        hi = np.concatenate([[total], layout.SAMPLE_UPPER[3:]])
-        c = np.concatenate([[False], layout.IS_CONTINUOUS[3:]])
-        mid = 0.5 * np.concatenate([[0.0], arm_a + arm_b])
-        lo = np.where(c, mid - np.pi, lo)
-        hi = np.where(c, mid + np.pi, hi)
-        w = np.concatenate([[1.0, 5.0], np.ones(7)])  # base seconds; torso metres weigh more
-        xa = np.concatenate([[0.0], arm_a])
-        xb = np.concatenate([[total], arm_b])
-        path, why = space.rrt_connect(xa, xb, lo, hi, w, rng, self._rrt_config(), deadline)
+        path, why = rrt.run(iterations, deadline)
         if path is None:
             if why == "timeout":
                 raise _Timeout()
             return None
+        space = rrt.space
         if path.shape[0] > 2:
             path = smoothing.shortcut(path, space.motion_free, rng, self.config.along_path_shortcut_iterations)
         out = [space.states(path[k], path[k + 1])[(1 if k else 0):] for k in range(path.shape[0] - 1)]
+        search["rrt"] = None  # used
         return np.concatenate(out)
 
     def _rrt_config(self) -> KernelRRTConfig:

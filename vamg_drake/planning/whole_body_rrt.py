@@ -32,7 +32,7 @@ from vamg_drake.planning.collision import CollisionChecker, config_free_data
 from vamg_drake.robot import layout
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _state_free(data):
     """Validity of data[0][0] (the (1, 11) scratch configuration)."""
     return config_free_data(data)
@@ -261,36 +261,76 @@ class WholeBodySearchSpace:
                     deadline_s: float | None = None) -> tuple[np.ndarray | None, str]:
         """Plans start -> goal (search states, assumed valid); returns
         (path (N, d), "") or (None, "timeout" | "iteration limit" | "tree full")."""
-        start = np.asarray(start, float)
-        goal = np.asarray(goal, float)
-        if self.motion_free(start, goal):
-            return np.stack([start, goal]), ""
-        d = start.shape[0]
-        rand = rng.random((config.max_iterations, d + 1))
-        nodes = np.empty((2, config.capacity, d))
-        parent = np.empty((2, config.capacity), dtype=np.int64)
-        count = np.ones(2, dtype=np.int64)
-        nodes[0, 0], nodes[1, 0] = start, goal
-        parent[:, 0] = -1
-        result = np.zeros(3, dtype=np.int64)
-        lo = np.ascontiguousarray(lower, dtype=float)
-        hi = np.ascontiguousarray(upper, dtype=float)
-        w = np.ascontiguousarray(weights, dtype=float)
-        for it0 in range(0, config.max_iterations, config.chunk):
+        return RRTConnectSearch(self, start, goal, lower, upper, weights, rng, config).run(None, deadline_s)
+
+
+class RRTConnectSearch:
+    """One RRT-Connect run of `WholeBodySearchSpace` that can be stopped
+    after some iterations and resumed later (its random numbers, one row per
+    iteration up to `config.max_iterations`, are drawn at construction, so
+    the result does not depend on where it was paused).
+
+    Args: as `WholeBodySearchSpace.rrt_connect`.
+    """
+
+    def __init__(self, space: WholeBodySearchSpace, start: np.ndarray, goal: np.ndarray, lower: np.ndarray,
+                 upper: np.ndarray, weights: np.ndarray, rng: np.random.Generator, config: KernelRRTConfig):
+        self.space = space
+        self.config = config
+        self.start = np.asarray(start, float)
+        self.goal = np.asarray(goal, float)
+        self.iteration = 0
+        self._direct: bool | None = None
+        self._done: tuple[np.ndarray | None, str] | None = None
+        d = self.start.shape[0]
+        self._rand = rng.random((config.max_iterations, d + 1))
+        self._nodes = np.empty((2, config.capacity, d))
+        self._parent = np.empty((2, config.capacity), dtype=np.int64)
+        self._count = np.ones(2, dtype=np.int64)
+        self._nodes[0, 0], self._nodes[1, 0] = self.start, self.goal
+        self._parent[:, 0] = -1
+        self._result = np.zeros(3, dtype=np.int64)
+        self._lo = np.ascontiguousarray(lower, dtype=float)
+        self._hi = np.ascontiguousarray(upper, dtype=float)
+        self._w = np.ascontiguousarray(weights, dtype=float)
+
+    def run(self, iterations: int | None = None, deadline_s: float | None = None) -> tuple[np.ndarray | None, str]:
+        """Runs up to `iterations` more iterations (None: up to the cap).
+        Returns (path, "") when connected, else (None, "timeout" |
+        "iteration limit" | "tree full"); "iteration limit" before the cap
+        means it may be resumed."""
+        if self._done is not None:
+            return self._done
+        space, config = self.space, self.config
+        if self._direct is None:
+            self._direct = space.motion_free(self.start, self.goal)
+            if self._direct:
+                self._done = (np.stack([self.start, self.goal]), "")
+                return self._done
+        until = config.max_iterations if iterations is None else min(self.iteration + iterations,
+                                                                      config.max_iterations)
+        while self.iteration < until:
             if deadline_s is not None and time.perf_counter() > deadline_s:
                 return None, "timeout"
-            it1 = min(it0 + config.chunk, config.max_iterations)
-            status = _rrt_connect_kernel(nodes, parent, count, it0, it1, rand, lo, hi, w, config.step,
-                                         config.goal_bias, self.along, self.base, self.poses, self.cum, self.dt,
-                                         self.lever, self.res, self.data, result)
+            it0 = self.iteration
+            it1 = min(it0 + config.chunk, until)
+            status = _rrt_connect_kernel(self._nodes, self._parent, self._count, it0, it1, self._rand, self._lo,
+                                         self._hi, self._w, config.step, config.goal_bias, space.along, space.base,
+                                         space.poses, space.cum, space.dt, space.lever, space.res, space.data,
+                                         self._result)
+            self.iteration = it1
             if status == 1:
-                ta, ia, ib = (int(v) for v in result)
-                path_a = _to_root(nodes[ta], parent[ta], ia)[::-1]
-                path_b = _to_root(nodes[1 - ta], parent[1 - ta], ib)[1:]
+                ta, ia, ib = (int(v) for v in self._result)
+                path_a = _to_root(self._nodes[ta], self._parent[ta], ia)[::-1]
+                path_b = _to_root(self._nodes[1 - ta], self._parent[1 - ta], ib)[1:]
                 path = np.concatenate([path_a, path_b])
-                return (path if ta == 0 else path[::-1]), ""
+                self._done = ((path if ta == 0 else path[::-1]), "")
+                return self._done
             if status == 2:
-                return None, "tree full"
+                self._done = (None, "tree full")
+                return self._done
+        if self.iteration >= config.max_iterations:
+            self._done = (None, "iteration limit")
         return None, "iteration limit"
 
 
