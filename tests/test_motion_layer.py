@@ -17,6 +17,7 @@ from vamg_drake.systems.planner_system import (
     REPLAN_LIMIT_REASON,
     PlannerSystem,
     PlannerSystemConfig,
+    arm_floor_clearance,
     linear_trajectory,
     remaining_path,
 )
@@ -97,6 +98,17 @@ def test_the_target_exempts_the_gripper_only_while_moving_to_a_grasp():
         system.GetInputPort("goal").FixValue(context, AbstractValue.Make(_goal(goal_id, q0, "hold", phase)))
         simulator.AdvanceTo(context.get_time() + 0.1)
         assert (system.planner.checker.env.grasp_target_radius > 0.0) == exempt, phase
+
+
+def test_arm_floor_clearance_sees_the_gripper_on_the_floor():
+    """The floor is not in the map: the motion layer measures how low the arm's
+    spheres go (the base's own spheres, which reach below the floor, excluded)."""
+    q = layout.stow_configuration(0.0, 0.0, 0.0)
+    assert arm_floor_clearance(q[None]) > 0.2
+    down = q.copy()
+    down[layout.TORSO] = 0.0
+    down[layout.ARM] = [0.0, 1.5, 0.0, 0.0, 0.0, 0.0, 0.0]  # shoulder lifted down: the arm points at the floor
+    assert arm_floor_clearance(np.stack([q, down])) < 0.0
 
 
 def test_hold_goal_stops_the_robot():

@@ -23,6 +23,7 @@ from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig, WholeBodyPlanner
 from vamg_drake.policy.behaviour_tree import GRASP_PHASES, MotionEvent, SubgoalCommand
 from vamg_drake.robot import layout
+from vamg_drake.robot.spheres import SphereModel
 from vamg_drake.systems.timing import ModuleTimings
 
 _log = logging.getLogger(__name__)
@@ -31,6 +32,23 @@ _log = logging.getLogger(__name__)
 EXCEPTION_REASON = "exception"
 #: `PlannedTrajectory.reason` when a goal was invalidated more than `max_replans` times.
 REPLAN_LIMIT_REASON = "replan_limit"
+#: `PlannedTrajectory.reason` when a planned path takes the arm into the floor.
+FLOOR_REASON = "arm_below_floor"
+#: Links whose spheres must stay above the floor (the arm; the base's own spheres reach below it).
+ARM_LINKS = ("shoulder_pan_link", "shoulder_lift_link", "upperarm_roll_link", "elbow_flex_link",
+             "forearm_roll_link", "wrist_flex_link", "wrist_roll_link", "gripper_link")
+
+
+def arm_floor_clearance(path: np.ndarray) -> float:
+    """The lowest point of the arm's spheres over the configurations path (K, 11) [m].
+
+    The map drops the floor (its points are not obstacles), so the planner's
+    checker does not see it; the motion layer checks planned paths against it.
+    """
+    spheres = SphereModel.load()
+    arm = np.isin(np.asarray(spheres.link_names)[spheres.link_index], ARM_LINKS)
+    centres = spheres.world_spheres(np.atleast_2d(path))[:, arm]
+    return float(np.min(centres[..., 2] - spheres.radius[arm]))
 
 
 @dc.dataclass(frozen=True, eq=False)
@@ -91,6 +109,9 @@ class PlannerSystemConfig:
             the trajectory was invalidated (the closed-loop-replanning baseline) [s].
         linear_speed_fraction: linear motions (approach, lift) move at this
             fraction of the joint velocity limits.
+        floor_clearance: a planned path whose arm spheres come closer to the
+            floor than this is rejected (FAILED, `FLOOR_REASON`); the floor is
+            not in the map (static s0000: the gripper touched the floor) [m].
         recheck_period: the collision environment is rebuilt from a newer map
             (and the trajectory re-checked) at most this often, except when a
             new goal must be planned at once: building the distance field of a
@@ -110,6 +131,7 @@ class PlannerSystemConfig:
     replan_period: float = 0.0
     linear_speed_fraction: float = 0.25
     recheck_period: float = 0.3
+    floor_clearance: float = 0.02
     planner: PlannerConfig = dc.field(default_factory=PlannerConfig)
 
 
@@ -237,6 +259,12 @@ class MotionSupervisor:
                          result.message)
             return PlannedTrajectory(goal.goal_id, None, False, result.reason or FailureReason.TIMEOUT, revision,
                                      result.timings["total"], motion="plan")
+        lowest = arm_floor_clearance(result.trajectory.q)
+        if lowest < self.config.floor_clearance:
+            _log.warning("WholeBodyPlanner t=%.2f: goal %d: the planned path takes the arm %.3f m from the floor "
+                         "(needs %.3f); rejected", t, goal.goal_id, lowest, self.config.floor_clearance)
+            return PlannedTrajectory(goal.goal_id, None, False, FLOOR_REASON, revision, result.timings["total"],
+                                     motion="plan")
         return PlannedTrajectory(goal.goal_id, result.trajectory.shifted(t), True, "", revision,
                                  result.timings["total"], motion="plan")
 
