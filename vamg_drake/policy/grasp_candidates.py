@@ -453,6 +453,8 @@ def _clearance_kernel(
                 dx = points[n, 0] - X_WG[k, 0, 3]
                 dy = points[n, 1] - X_WG[k, 1, 3]
                 dz = points[n, 2] - X_WG[k, 2, 3]
+                if dx * dx + dy * dy + dz * dz > reach2:
+                    continue
                 y_signed = X_WG[k, 0, 1] * dx + X_WG[k, 1, 1] * dy + X_WG[k, 2, 1] * dz
                 y_side = y_signed if side == 0 else -y_signed
                 if y_side < extreme - contact_band or y_side > extreme:
