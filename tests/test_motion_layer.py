@@ -17,6 +17,7 @@ from vamg_drake.systems.planner_system import (
     REPLAN_LIMIT_REASON,
     PlannerSystem,
     PlannerSystemConfig,
+    arm_floor_clearance,
     linear_trajectory,
     remaining_path,
 )
@@ -56,6 +57,58 @@ def test_linear_goal_is_a_straight_joint_space_motion_within_its_speed():
     simulator.AdvanceTo(traj.end_time + 0.2)
     feedback = system.GetOutputPort("motion_feedback").Eval(context)
     assert feedback.goal_id == 3 and feedback.event == MotionEvent.REACHED
+
+
+def test_a_robot_behind_schedule_gets_slack_in_proportion_to_the_motion():
+    """The tracker follows the path, not the clock: a robot still short of the
+    goal settle_time after the end of a long motion is not failed until
+    settle_time + settle_time_fraction * duration; then it is."""
+    config = PlannerSystemConfig(planner=PlannerConfig(attempt_budget_s=5.0))
+    system, context = _system(config)
+    q0 = layout.stow_configuration(1.0, 2.0, 0.5)
+    q1 = q0.copy()
+    q1[layout.TORSO] += 0.3  # 12 s at 0.25 x 0.1 m/s
+    system.GetInputPort("robot_configuration").FixValue(context, q0)
+    system.GetInputPort("goal").FixValue(context, AbstractValue.Make(_goal(4, q1, "linear", Phase.GRASP_LIFT)))
+    simulator = Simulator(system, context)
+    simulator.AdvanceTo(0.05)
+    traj = system.GetOutputPort("timed_trajectory").Eval(context)
+    slack = config.settle_time + config.settle_time_fraction * traj.duration
+    simulator.AdvanceTo(traj.end_time + config.settle_time + 0.5)
+    assert system.GetOutputPort("motion_feedback").Eval(context).event == MotionEvent.NONE
+    simulator.AdvanceTo(traj.end_time + slack + 0.2)
+    feedback = system.GetOutputPort("motion_feedback").Eval(context)
+    assert feedback.goal_id == 4 and feedback.event == MotionEvent.FAILED
+
+
+def test_the_target_exempts_the_gripper_only_while_moving_to_a_grasp():
+    """The target's points block the whole robot for pre-grasp and observe
+    goals; only a grasp's own motion lets the gripper near them."""
+    system, context = _system()
+    target = np.array([2.0, 2.0, 0.8])
+    ball = target + 0.03 * np.random.default_rng(0).normal(size=(200, 3))
+    system.GetInputPort("point_map").FixValue(context, AbstractValue.Make(
+        PointMapSnapshot(ball, np.zeros(len(ball), np.int64), 0.03, 1)))
+    system.GetInputPort("target").FixValue(context, target)
+    q0 = layout.stow_configuration(0.0, 0.0, 0.0)
+    system.GetInputPort("robot_configuration").FixValue(context, q0)
+    simulator = Simulator(system, context)
+    for goal_id, phase, exempt in ((1, Phase.PREGRASP, False), (2, Phase.GRASP_MOVE, True),
+                                   (3, Phase.OBSERVE, False)):
+        system.GetInputPort("goal").FixValue(context, AbstractValue.Make(_goal(goal_id, q0, "hold", phase)))
+        simulator.AdvanceTo(context.get_time() + 0.1)
+        assert (system.planner.checker.env.grasp_target_radius > 0.0) == exempt, phase
+
+
+def test_arm_floor_clearance_sees_the_gripper_on_the_floor():
+    """The floor is not in the map: the motion layer measures how low the arm's
+    spheres go (the base's own spheres, which reach below the floor, excluded)."""
+    q = layout.stow_configuration(0.0, 0.0, 0.0)
+    assert arm_floor_clearance(q[None]) > 0.2
+    down = q.copy()
+    down[layout.TORSO] = 0.0
+    down[layout.ARM] = [0.0, 1.5, 0.0, 0.0, 0.0, 0.0, 0.0]  # shoulder lifted down: the arm points at the floor
+    assert arm_floor_clearance(np.stack([q, down])) < 0.0
 
 
 def test_hold_goal_stops_the_robot():

@@ -108,6 +108,21 @@ def test_invalidated_goal_is_resampled_without_failure() -> None:
     assert bt.total_failures == 0
 
 
+def test_the_invalidation_budget_counts_since_the_last_reached_goal() -> None:
+    """Two invalidations are allowed; a reached goal resets the count, so four
+    spread over two goals do not end the episode, three in a row do."""
+    bt, s = _make([False], [True] * 20, [True], max_invalidations=2, max_pregrasp_goals=20)
+    cmd = bt.step(_inputs())
+    for k in range(2):
+        cmd = bt.step(_inputs(0.1 * (k + 1)), MotionEvent.INVALIDATED)
+    cmd = bt.step(_inputs(1.0, cmd.q_goal), MotionEvent.REACHED)
+    for k in range(2):
+        cmd = bt.step(_inputs(1.1 + 0.1 * k), MotionEvent.INVALIDATED)
+    assert cmd.phase == Phase.PREGRASP
+    cmd = bt.step(_inputs(1.5), MotionEvent.INVALIDATED)
+    assert cmd.phase == Phase.FAILED and cmd.failure == FailureCategory.PLANNING
+
+
 def test_repeated_motion_failures_end_with_planning() -> None:
     bt, s = _make([False], [True], [True], max_total_failures=3)
     cmd = bt.step(_inputs())

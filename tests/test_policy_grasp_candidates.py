@@ -96,6 +96,46 @@ def test_no_grasp_holds_a_cube_with_half_a_pad() -> None:
     assert sampler._clearance_ok(cube, X, np.full(2, 2 * half)).tolist() == [True, True]
 
 
+def _top_down(yaw: float, origin: np.ndarray) -> np.ndarray:
+    """A top-down grasp frame (x down) with the closing axis at `yaw`."""
+    X = np.eye(4)
+    c, s_ = np.cos(yaw), np.sin(yaw)
+    X[:3, 0] = [0.0, 0.0, -1.0]
+    X[:3, 1] = [c, s_, 0.0]
+    X[:3, 2] = np.cross(X[:3, 0], X[:3, 1])
+    X[:3, 3] = origin
+    return X
+
+
+def _first_contacts_ok(cloud: np.ndarray, X: np.ndarray, width: float) -> bool:
+    from vamg_drake.policy.grasp_candidates import estimate_normals
+
+    sampler = AntipodalGraspSampler()
+    sampler._margin, sampler._spacing = sampler.config.margin, 0.004
+    normals, _ = estimate_normals(cloud, sampler.config.normal_neighbours)
+    return bool(sampler._clearance_ok(cloud, X[None], np.array([width]), normals)[0])
+
+
+def test_first_contacts_of_the_closing_pads_decide():
+    """Flat pads touch an object first at its extremes along the closing axis:
+    a cube closed across its faces is held; closed 40 deg off them the pads
+    first meet two vertical edges (normals far outside the friction cone); a
+    ball whose equator lies beyond the fingertips is touched at the tips only."""
+    half = 0.03
+    cube = clouds.box_cloud(center=CENTER, size=(2 * half,) * 3, yaw=0.0, n=4000, seed=6)
+    origin = CENTER + np.array([0.0, 0.0, 2 * half + 0.031 - 0.03])  # fingertips 3 cm down the cube's sides
+    assert _first_contacts_ok(cube, _top_down(0.0, origin), 2 * half)
+    assert not _first_contacts_ok(cube, _top_down(np.deg2rad(40.0), origin), 2 * half * np.sqrt(2))
+    r = 0.025
+    center = np.array([1.0, 0.0, 1.0])
+    ball = clouds.sphere_cloud(center, r, n=4000, seed=7)
+    ball = ball[ball[:, 2] > center[2] - 0.9 * r]
+    mid = _top_down(0.0, center)  # equator at the pads' middle
+    assert _first_contacts_ok(ball, mid, 2 * r)
+    short = _top_down(0.0, center + np.array([0.0, 0.0, 0.036]))  # equator 5 mm beyond the fingertips
+    assert not _first_contacts_ok(ball, short, 2 * r * 0.9)
+
+
 def _assert_valid_frames(g: GraspCandidates) -> None:
     R = g.X_WG[:, :3, :3]
     np.testing.assert_allclose(R @ np.swapaxes(R, 1, 2), np.broadcast_to(np.eye(3), R.shape), atol=1e-9)

@@ -2,6 +2,7 @@
 
 import logging
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -198,6 +199,24 @@ def test_an_in_place_turn_with_position_jitter_is_one_turn_not_many_cusps():
     assert len(core._stops) == 1  # the final waypoint only
     ro = rollout(core, tr.q[0], tr.end_time + 3.0)
     assert abs(ro.final_q[2] - tr.q[-1, 2]) < 0.05
+
+
+def test_a_three_point_turn_with_a_lateral_offset_at_the_cusp_is_finished():
+    """The seed-0 pre-grasp motion (recorded in tests/data): it ends in a
+    reverse-forward turn; the robot reached the first cusp 3.3 cm away along
+    the path but not across it, and crept there until the motion timed out.
+    Cusps are passed on the along-track error (the unicycle cannot remove the
+    lateral one there)."""
+    data = np.load(Path(__file__).parent / "data" / "seed0_three_point_turn.npz")
+    times, q = data["times"], data["q"]
+    finish = {}
+    for tolerance in (1e-3, TrackerConfig().cusp_lateral_tolerance):
+        core = WholeBodyTrackerCore(TrackerConfig(cusp_lateral_tolerance=tolerance))
+        assert core.set_trajectory(times, q, q[0]) == ""
+        ro = rollout(core, q[0], times[-1] + 8.0)
+        assert ro.done
+        finish[tolerance] = ro.times[-1]
+    assert finish[TrackerConfig().cusp_lateral_tolerance] < finish[1e-3] - 1.0
 
 
 def test_a_pause_in_the_path_does_not_stall():

@@ -32,7 +32,8 @@ Additions to the paper, each documented and switchable:
 * **Cusps.** A Reeds-Shepp path reverses at cusps, where the look-ahead would
   fold back onto the path and stall the robot short of the cusp. The path is
   split at base direction reversals; the reference never passes the next cusp
-  until the robot is within `cusp_position_tolerance` / `cusp_heading_tolerance`
+  until the robot is within `cusp_position_tolerance` along its heading,
+  `cusp_lateral_tolerance` across it and `cusp_heading_tolerance`
   of it.
 * **Lateral correction.** B(theta) has no lateral direction, so the paper's law
   leaves a cross-track offset uncorrected. With ``lateral_gain > 0`` the
@@ -96,7 +97,11 @@ class TrackerConfig:
         goal_heading_tolerance: ...its heading this close [rad]...
         goal_joint_tolerance: ...and every torso/arm joint this close [m or rad]
             (0.03 rad on each of 7 joints left the gripper 1.5-2 cm off a grasp pose).
-        cusp_position_tolerance: a cusp is passed within this distance [m]...
+        cusp_position_tolerance: a cusp is passed within this distance along
+            the robot's heading [m]...
+        cusp_lateral_tolerance: ...this distance across it (a unicycle cannot
+            remove a lateral offset at the cusp itself: seed 0 stopped 3.3 cm
+            from a cusp, 0.7 cm across, and crept until the motion timed out) [m]...
         cusp_heading_tolerance: ...and this heading error [rad].
         stall_command_ratio: with the reference at a stop and the command below
             this fraction of every limit, the robot has stalled (a unicycle
@@ -132,6 +137,7 @@ class TrackerConfig:
     goal_heading_tolerance: float = 0.05
     goal_joint_tolerance: float = 0.01
     cusp_position_tolerance: float = 0.03
+    cusp_lateral_tolerance: float = 0.08
     cusp_heading_tolerance: float = 0.05
     stall_command_ratio: float = 0.01
     max_start_position_error: float = 0.3
@@ -152,7 +158,7 @@ class TrackerConfig:
         if not all(math.isfinite(v) and v > 0.0 for v in self.r_diag):
             raise ValueError("TrackerConfig.r_diag must be finite and > 0")
         positive = ("period", "gain", "resample_dt", "search_window_time", "goal_position_tolerance",
-                    "goal_heading_tolerance", "goal_joint_tolerance", "cusp_position_tolerance",
+                    "goal_heading_tolerance", "goal_joint_tolerance", "cusp_position_tolerance", "cusp_lateral_tolerance",
                     "cusp_heading_tolerance", "max_start_position_error", "max_start_heading_error",
                     "max_start_joint_error", "max_waypoint_step_position", "max_waypoint_step_joint",
                     "max_rate_ratio")
@@ -515,7 +521,9 @@ class WholeBodyTrackerCore:
         seg_end = int(self._stops[self._segment])
         if reference == seg_end and seg_end < last:
             dx_stop = state_error(qs[seg_end], q_now)
-            at_cusp = (math.hypot(dx_stop[0], dx_stop[1]) <= cfg.cusp_position_tolerance
+            c, s = math.cos(q_now[2]), math.sin(q_now[2])
+            along, across = c * dx_stop[0] + s * dx_stop[1], -s * dx_stop[0] + c * dx_stop[1]
+            at_cusp = (abs(along) <= cfg.cusp_position_tolerance and abs(across) <= cfg.cusp_lateral_tolerance
                        and abs(dx_stop[2]) <= cfg.cusp_heading_tolerance)
             if at_cusp or self._stalled(self._control(q_now, nearest, reference, seg_end)):
                 self._segment += 1

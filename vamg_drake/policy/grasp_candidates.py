@@ -143,11 +143,20 @@ class AntipodalGraspConfig:
     min_points: int = 20
     #: Fewest object points between the fingers.
     min_support: int = 4
-    #: The object's points where the pads touch it (within two margins inside
-    #: the contact width) must reach this fraction of the pad's half width on
-    #: both sides of the pads' middle along z of G: a grasp on the very edge of
-    #: an object holds it with half a pad (static s0003: a tilted side grasp
-    #: with the pads' middle level with a 5.7 cm cube's top edge closed on air).
+    #: Where the closing pads first touch the object: its points within this
+    #: distance of its extremes along the closing axis, on each side [m]. Most of
+    #: them must have normals in the friction cone of the closing axis, lie
+    #: ``min_tip_distance`` inside the fingertips, and reach ``min_pad_span`` of
+    #: the pad's half width on both sides of the pads' middle. The contact pair
+    #: sampled is not where flat pads touch first: a cube closed diagonally is
+    #: touched at its edges near the fingertips and spun out, a cup closed in
+    #: front of its widest section is pushed out (static s0003, s0004, s0007:
+    #: the fingers closed on air after first touching the object at the tips).
+    contact_band: float = 0.003
+    min_tip_distance: float = 0.01
+    #: Friction coefficient of the first-contact test (the simulated fingers'
+    #: is 0.8; the pair sampling above uses the stricter ``friction_coefficient``).
+    contact_friction_coefficient: float = 0.6
     min_pad_span: float = 0.5
     #: Most candidates returned (highest scores first).
     max_candidates: int = 400
@@ -211,6 +220,7 @@ class AntipodalGraspSampler:
         self.config.__post_init__()  # YAML-loaded configs skip __post_init__
         self._line_tolerance = self.config.line_tolerance
         self._margin = self.config.margin
+        self._spacing = 0.0
 
     def propose(
         self,
@@ -238,6 +248,7 @@ class AntipodalGraspSampler:
         spacing = float(np.median(cKDTree(crop).query(crop, k=2)[0][:, 1]))
         self._line_tolerance = max(cfg.line_tolerance, 0.75 * spacing)
         self._margin = max(cfg.margin, 0.5 * spacing)
+        self._spacing = spacing
         normals, _ = estimate_normals(crop, cfg.normal_neighbours)
         pairs = self._antipodal_pairs(crop, normals, np.flatnonzero(near), rng)
         if pairs.shape[0] == 0:
@@ -266,7 +277,7 @@ class AntipodalGraspSampler:
         x_axis = (ca[None, :, None] * u[:, None, :] + sa[None, :, None] * v[:, None, :]).reshape(-1, 3)
         rep = lambda a: np.repeat(a, cfg.num_approaches, axis=0)  # noqa: E731
         y_rep, c_rep, w_rep, q_rep = rep(y_axis), rep(center), rep(width), rep(quality)
-        X_WG, ok, offset = self._clear_frames(crop, x_axis, y_rep, c_rep, w_rep)
+        X_WG, ok, offset = self._clear_frames(crop, normals, x_axis, y_rep, c_rep, w_rep)
         if not np.any(ok):
             return GraspCandidates.empty("every antipodal grasp collides with the observed cloud (no finger clearance)")
         X_WG, w_rep, q_rep, c_rep, offset = X_WG[ok], w_rep[ok], q_rep[ok], c_rep[ok], offset[ok]
@@ -276,8 +287,8 @@ class AntipodalGraspSampler:
         order = np.argsort(-score, kind="stable")[: cfg.max_candidates]
         return GraspCandidates(X_WG[order], score[order], w_rep[order])
 
-    def _clear_frames(self, points: np.ndarray, x_axis: np.ndarray, y_axis: np.ndarray, center: np.ndarray,
-                      width: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _clear_frames(self, points: np.ndarray, normals: np.ndarray, x_axis: np.ndarray, y_axis: np.ndarray,
+                      center: np.ndarray, width: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Grasp frames X_WG (K, 4, 4) with the contacts at the first of
         ``contact_offsets`` where the gripper clears the cloud, whether one does
         (K,), and that offset (K,)."""
@@ -287,7 +298,7 @@ class AntipodalGraspSampler:
         todo = np.arange(x_axis.shape[0])
         for contact_x in self.config.contact_offsets:
             X = _frames_from_axes(x_axis[todo], y_axis[todo], center[todo] - contact_x * x_axis[todo])
-            clear = self._clearance_ok(points, X, width[todo])
+            clear = self._clearance_ok(points, X, width[todo], normals)
             X_WG[todo] = X
             ok[todo[clear]] = True
             offset[todo] = contact_x
@@ -332,12 +343,23 @@ class AntipodalGraspSampler:
             return np.zeros((0, 2), dtype=int)
         return np.concatenate(pairs)
 
-    def _clearance_ok(self, points: np.ndarray, X_WG: np.ndarray, width: np.ndarray) -> np.ndarray:
-        """True where the fingers' closing sweep and the palm's approach sweep are point-free."""
+    def _clearance_ok(self, points: np.ndarray, X_WG: np.ndarray, width: np.ndarray,
+                      normals: np.ndarray | None = None) -> np.ndarray:
+        """True where the fingers' closing sweep and the palm's approach sweep are
+        point-free and the pads' middle is over the object (`min_pad_span`; with
+        `normals`, only points whose normal lies in the friction cone of the
+        closing axis are contact-surface points)."""
         cfg = self.config
         g = cfg.gripper
+        if normals is None:
+            normals = np.zeros_like(points)
+            cos_cone = -1.0  # every point's normal qualifies
+        else:
+            cos_cone = float(np.cos(np.arctan(cfg.contact_friction_coefficient)))
         return _clearance_kernel(
             np.ascontiguousarray(points),
+            np.ascontiguousarray(normals, dtype=float),
+            cos_cone,
             np.ascontiguousarray(X_WG),
             np.ascontiguousarray(width),
             self._margin,
@@ -349,13 +371,17 @@ class AntipodalGraspSampler:
             g.palm_depth + cfg.approach_distance,
             g.palm_height,
             cfg.min_support,
-            cfg.min_pad_span * 0.5 * g.finger_width,
+            max(cfg.min_pad_span * 0.5 * g.finger_width - 0.5 * self._spacing, 0.0),
+            max(cfg.contact_band, self._spacing),
+            cfg.min_tip_distance,
         )
 
 
 @numba.njit(cache=True, parallel=True)
 def _clearance_kernel(
     points: np.ndarray,
+    normals: np.ndarray,
+    cos_cone: float,
     X_WG: np.ndarray,
     width: np.ndarray,
     margin: float,
@@ -368,19 +394,24 @@ def _clearance_kernel(
     palm_height: float,
     min_support: int,
     min_span_z: float,
+    contact_band: float,
+    min_tip_distance: float,
 ) -> np.ndarray:
-    """Per candidate: no point in the closing sweep of the pads or the approach sweep
-    of the palm and open fingers, at least ``min_support`` points between the pads,
-    and contact-surface points among them at z <= -min_span_z and at z >= min_span_z
-    in G (the pads' middle is over the object, not over its edge)."""
+    """Per candidate: no point in the closing sweep of the pads or the approach
+    sweep of the palm and open fingers, at least ``min_support`` points between
+    the pads, and where the closing pads first touch the object (the points
+    within ``contact_band`` of its extremes along +-y of G, on each side):
+    normals in the friction cone of the closing axis (`cos_cone`), at least
+    ``min_tip_distance`` inside the fingertips, and reaching ``min_span_z`` on
+    both sides of the pads' middle along z (not over the object's edge)."""
     k_count = X_WG.shape[0]
     ok = np.zeros(k_count, dtype=np.bool_)
     reach2 = (abs(fingertip_x) + finger_length + palm_sweep) ** 2 + (half_open + finger_thickness) ** 2 + palm_height**2
     for k in numba.prange(k_count):
         inner = 0.5 * width[k] + margin
         support = 0
-        z_low = 0.0
-        z_high = 0.0
+        y_pos = 0.0
+        y_neg = 0.0
         free = True
         for n in range(points.shape[0]):
             dx = points[n, 0] - X_WG[k, 0, 3]
@@ -392,21 +423,59 @@ def _clearance_kernel(
             x = X_WG[k, 0, 0] * dx + X_WG[k, 1, 0] * dy + X_WG[k, 2, 0] * dz - fingertip_x
             if x > 0.0 or x < -finger_length - palm_sweep:
                 continue
-            y = abs(X_WG[k, 0, 1] * dx + X_WG[k, 1, 1] * dy + X_WG[k, 2, 1] * dz)
-            z_signed = X_WG[k, 0, 2] * dx + X_WG[k, 1, 2] * dy + X_WG[k, 2, 2] * dz
-            z = abs(z_signed)
+            y_signed = X_WG[k, 0, 1] * dx + X_WG[k, 1, 1] * dy + X_WG[k, 2, 1] * dz
+            y = abs(y_signed)
+            z = abs(X_WG[k, 0, 2] * dx + X_WG[k, 1, 2] * dy + X_WG[k, 2, 2] * dz)
             if x >= -finger_length:
                 if z <= 0.5 * finger_width:
                     if y < inner:
                         support += 1
-                        if y >= inner - 3.0 * margin:  # on a contact surface
-                            z_low = min(z_low, z_signed)
-                            z_high = max(z_high, z_signed)
+                        y_pos = max(y_pos, y_signed)
+                        y_neg = min(y_neg, y_signed)
                     elif y <= half_open + finger_thickness:
                         free = False
                         break
             elif y <= half_open + finger_thickness and z <= 0.5 * palm_height:
                 free = False
                 break
-        ok[k] = free and support >= min_support and z_low <= -min_span_z and z_high >= min_span_z
+        if not free or support < min_support or y_pos <= 0.0 or y_neg >= 0.0:
+            continue
+        # The first contacts of the closing pads, one side at a time.
+        good = True
+        for side in range(2):
+            extreme = y_pos if side == 0 else -y_neg
+            count = 0
+            in_cone = 0
+            deep = 0
+            z_low = 0.0
+            z_high = 0.0
+            for n in range(points.shape[0]):
+                dx = points[n, 0] - X_WG[k, 0, 3]
+                dy = points[n, 1] - X_WG[k, 1, 3]
+                dz = points[n, 2] - X_WG[k, 2, 3]
+                if dx * dx + dy * dy + dz * dz > reach2:
+                    continue
+                y_signed = X_WG[k, 0, 1] * dx + X_WG[k, 1, 1] * dy + X_WG[k, 2, 1] * dz
+                y_side = y_signed if side == 0 else -y_signed
+                if y_side < extreme - contact_band or y_side > extreme:
+                    continue
+                x = X_WG[k, 0, 0] * dx + X_WG[k, 1, 0] * dy + X_WG[k, 2, 0] * dz - fingertip_x
+                z_signed = X_WG[k, 0, 2] * dx + X_WG[k, 1, 2] * dy + X_WG[k, 2, 2] * dz
+                if x > 0.0 or x < -finger_length or abs(z_signed) > 0.5 * finger_width:
+                    continue
+                count += 1
+                n_y = abs(X_WG[k, 0, 1] * normals[n, 0] + X_WG[k, 1, 1] * normals[n, 1]
+                          + X_WG[k, 2, 1] * normals[n, 2])
+                if n_y >= cos_cone:
+                    in_cone += 1
+                if x <= -min_tip_distance:
+                    deep += 1
+                z_low = min(z_low, z_signed)
+                z_high = max(z_high, z_signed)
+            # Most first-contact points face the pad, lie inside the fingertips,
+            # and the contact reaches across the pads' middle.
+            if (2 * in_cone < count or 2 * deep < count or z_low > -min_span_z or z_high < min_span_z):
+                good = False
+                break
+        ok[k] = good
     return ok

@@ -27,8 +27,8 @@ from scipy.spatial import cKDTree
 from vamg_drake.planning.collision import CollisionChecker, CollisionCheckerConfig, CollisionEnvironment
 from vamg_drake.policy.arm_chain import base_poses
 from vamg_drake.policy.behaviour_tree import FailureCategory, PolicyInputs, SubgoalProposal, SubgoalSamplers
-from vamg_drake.policy.grasp_candidates import AntipodalGraspSampler, GraspCandidates, GraspCandidateSource
-from vamg_drake.policy.grasp_ranking import GraspRankingConfig, pregrasp_poses, select_grasp_goal
+from vamg_drake.policy.grasp_candidates import AntipodalGraspConfig, AntipodalGraspSampler, GraspCandidates, GraspCandidateSource
+from vamg_drake.policy.grasp_ranking import GraspRankingConfig, pose_distance, pregrasp_poses, select_grasp_goal
 from vamg_drake.policy.ik import FastIk
 from vamg_drake.policy.kinematic_maps import KinematicMaps
 from vamg_drake.policy.observe_sampler import ObserveConfig, ObserveSampler
@@ -47,6 +47,8 @@ class SubgoalPipelineConfig:
     ranking: GraspRankingConfig = dc.field(default_factory=lambda: GraspRankingConfig(check_grasp_collision=True))
     pregrasp: PregraspConfig = dc.field(default_factory=PregraspConfig)
     observe: ObserveConfig = dc.field(default_factory=ObserveConfig)
+    #: The geometric grasp candidate source (used unless another source is given).
+    grasps: AntipodalGraspConfig = dc.field(default_factory=AntipodalGraspConfig)
     #: Distance field resolution of the collision environment [m].
     collision_resolution: float = 0.03
     #: Map points within this horizontal distance of the target (or the robot) are obstacles [m].
@@ -65,6 +67,11 @@ class SubgoalPipelineConfig:
     #: The grasp stage tries the grasp its last pre-grasp was accepted for first
     #: when the base is within this distance of that pre-grasp's [m].
     aimed_grasp_tolerance: float = 0.15
+    #: ... and when the current candidates (from the denser cloud seen on
+    #: arrival) still hold one within this SE(3) distance of it (`pose_distance`,
+    #: metres + 0.1 per radian); that candidate is tried (static s0003: a grasp
+    #: chosen from the far, sparse view closed the fingertips on a cube's top edge).
+    aimed_grasp_match: float = 0.03
     #: Enclosure test: rays from the target, blocked by a point within
     #: ``enclosure_ray_radius`` of the ray between ``enclosure_min_distance``
     #: (beyond the target object's own surface) and ``enclosure_range``.
@@ -90,7 +97,7 @@ class SubgoalPipeline:
         #: Optional `vamg_drake.systems.timing.ModuleTimings` (grasp candidates, samplers).
         self.timings = timings
         self.maps = maps
-        self.grasp_source = grasp_source or AntipodalGraspSampler()
+        self.grasp_source = grasp_source or AntipodalGraspSampler(self.config.grasps)
         self.ik = FastIk()
         self.visibility = TargetVisibility()
         self.pregrasp = PregraspSampler(maps, self.ik, self.visibility, self.config.pregrasp)
@@ -185,8 +192,10 @@ class SubgoalPipeline:
         # collision re-checked; the capability map already had its say).
         goal, aimed = None, self._aimed_grasp
         if aimed is not None and np.linalg.norm(aimed[0][:2] - q[:2]) <= self.config.aimed_grasp_tolerance:
-            goal = self._grasp_goal(GraspCandidates(aimed[1][None], np.ones(1), np.zeros(1)), q, p_WM, p_WT,
-                                    capability=False)
+            d = pose_distance(candidates.X_WG, aimed[1][None], self.config.ranking.rotation_weight)
+            match = int(np.argmin(d))
+            if d[match] <= self.config.aimed_grasp_match:
+                goal = self._grasp_goal(candidates.subset([match]), q, p_WM, p_WT, capability=False)
         if goal is None or not goal.success:
             goal = self._grasp_goal(candidates, q, p_WM, p_WT)
         if not goal.success:

@@ -31,6 +31,11 @@ class VisibilityConfig:
     target_margin: float = 0.04
     #: A map point closer than this to the line of sight blocks it [m].
     point_occlusion_radius: float = 0.03
+    #: The robot's spheres block the line of sight with their radii scaled by
+    #: this: they cover the links with a bulge (the palm's 5.9 cm spheres cover
+    #: a 4 cm half-height box), and a self-occlusion test needs no such margin
+    #: (static s0004: 0 of 4 collision-free pre-grasps "visible").
+    self_occlusion_radius_scale: float = 0.7
 
 
 class TargetVisibility:
@@ -95,7 +100,7 @@ class TargetVisibility:
         direction = seg / np.maximum(length, 1e-9)[:, None]
         end = np.maximum(length - cfg.target_margin, 0.0)
         centers = self.spheres.world_spheres(q, head, link_poses=X_WL)[:, self._body]  # (K, S, 3)
-        radius = self.spheres.radius[self._body]
+        radius = cfg.self_occlusion_radius_scale * self.spheres.radius[self._body]
         rel = centers - a[:, None, :]
         t = np.clip(np.einsum("ksi,ki->ks", rel, direction), 0.0, end[:, None])
         closest = a[:, None, :] + t[..., None] * direction[:, None, :]

@@ -21,8 +21,9 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 from vamg_drake.planning.collision import CollisionEnvironment
 from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig, WholeBodyPlanner
-from vamg_drake.policy.behaviour_tree import MotionEvent, SubgoalCommand
+from vamg_drake.policy.behaviour_tree import GRASP_PHASES, MotionEvent, SubgoalCommand
 from vamg_drake.robot import layout
+from vamg_drake.robot.spheres import SphereModel
 from vamg_drake.systems.timing import ModuleTimings
 
 _log = logging.getLogger(__name__)
@@ -31,6 +32,23 @@ _log = logging.getLogger(__name__)
 EXCEPTION_REASON = "exception"
 #: `PlannedTrajectory.reason` when a goal was invalidated more than `max_replans` times.
 REPLAN_LIMIT_REASON = "replan_limit"
+#: `PlannedTrajectory.reason` when a planned path takes the arm into the floor.
+FLOOR_REASON = "arm_below_floor"
+#: Links whose spheres must stay above the floor (the arm; the base's own spheres reach below it).
+ARM_LINKS = ("shoulder_pan_link", "shoulder_lift_link", "upperarm_roll_link", "elbow_flex_link",
+             "forearm_roll_link", "wrist_flex_link", "wrist_roll_link", "gripper_link")
+
+
+def arm_floor_clearance(path: np.ndarray) -> float:
+    """The lowest point of the arm's spheres over the configurations path (K, 11) [m].
+
+    The map drops the floor (its points are not obstacles), so the planner's
+    checker does not see it; the motion layer checks planned paths against it.
+    """
+    spheres = SphereModel.load()
+    arm = np.isin(np.asarray(spheres.link_names)[spheres.link_index], ARM_LINKS)
+    centres = spheres.world_spheres(np.atleast_2d(path))[:, arm]
+    return float(np.min(centres[..., 2] - spheres.radius[arm]))
 
 
 @dc.dataclass(frozen=True, eq=False)
@@ -69,14 +87,21 @@ class PlannerSystemConfig:
         period: how often the system looks for work (new goal, new map) [s].
         floor_z: map points below this height are the floor, not obstacles [m].
         target_clearance: map points this close to the target are the object
-            to grasp: obstacles to the robot except its gripper, which is
-            meant to reach them [m].
+            to grasp: while moving to a grasp's pre-grasp pose they are
+            obstacles to the robot except its gripper, which is meant to reach
+            them; for every other goal (pre-grasp, observe) they are obstacles
+            to the gripper too (static s0001: with the exemption on every
+            motion the palm swept through the target between two pre-grasp
+            poses) [m].
         reach_tolerance: every joint of q within this of the goal reports REACHED.
         linear_reach_tolerance: the same for "linear" goals (the grasp approach
             and lift), which must end on the grasp pose: 0.03 rad per arm joint
             left the gripper 1.5-2 cm off it (static s0003).
         settle_time: after the trajectory's end, how long the robot may take to
-            settle within `reach_tolerance` [s] ...
+            settle within `reach_tolerance` [s], plus `settle_time_fraction`
+            of the trajectory's duration (the tracker follows the path, not
+            the clock, and falls behind on long motions: seed 0 was 3.5 s
+            late on a 6.4 s motion ending in a three-point turn) ...
         settle_tolerance: ... after which a q within this looser tolerance still
             counts as REACHED; farther away the motion FAILED.
         max_replans: replans after invalidations per goal (the appendix's K).
@@ -84,6 +109,9 @@ class PlannerSystemConfig:
             the trajectory was invalidated (the closed-loop-replanning baseline) [s].
         linear_speed_fraction: linear motions (approach, lift) move at this
             fraction of the joint velocity limits.
+        floor_clearance: a planned path whose arm spheres come closer to the
+            floor than this is rejected (FAILED, `FLOOR_REASON`); the floor is
+            not in the map (static s0000: the gripper touched the floor) [m].
         recheck_period: the collision environment is rebuilt from a newer map
             (and the trajectory re-checked) at most this often, except when a
             new goal must be planned at once: building the distance field of a
@@ -97,11 +125,13 @@ class PlannerSystemConfig:
     reach_tolerance: float = 0.03
     linear_reach_tolerance: float = 0.012
     settle_time: float = 3.0
+    settle_time_fraction: float = 0.5
     settle_tolerance: float = 0.12
     max_replans: int = 8
     replan_period: float = 0.0
     linear_speed_fraction: float = 0.25
     recheck_period: float = 0.3
+    floor_clearance: float = 0.02
     planner: PlannerConfig = dc.field(default_factory=PlannerConfig)
 
 
@@ -159,12 +189,13 @@ class MotionSupervisor:
             tolerance = cfg.linear_reach_tolerance if goal.motion == "linear" else cfg.reach_tolerance
             if np.all(error <= tolerance):
                 return plan, MotionEvent.REACHED
-            if t >= plan.trajectory.end_time + cfg.settle_time:
+            slack = cfg.settle_time + cfg.settle_time_fraction * plan.trajectory.duration
+            if t >= plan.trajectory.end_time + slack:
                 if np.all(error <= cfg.settle_tolerance):
                     return plan, MotionEvent.REACHED
                 worst = int(np.argmax(error))
                 _log.warning("motion t=%.2f: goal %d not reached %.1f s after the trajectory ended (max error %.3f "
-                             "at %s)", t, goal.goal_id, cfg.settle_time, float(error[worst]),
+                             "at %s)", t, goal.goal_id, slack, float(error[worst]),
                              layout.WHOLE_BODY_JOINTS[worst])
                 return dc.replace(plan, trajectory=None, success=False, reason=FailureReason.TIMEOUT), MotionEvent.FAILED
         if goal.motion != "plan":
@@ -228,6 +259,12 @@ class MotionSupervisor:
                          result.message)
             return PlannedTrajectory(goal.goal_id, None, False, result.reason or FailureReason.TIMEOUT, revision,
                                      result.timings["total"], motion="plan")
+        lowest = arm_floor_clearance(result.trajectory.q)
+        if lowest < self.config.floor_clearance:
+            _log.warning("WholeBodyPlanner t=%.2f: goal %d: the planned path takes the arm %.3f m from the floor "
+                         "(needs %.3f); rejected", t, goal.goal_id, lowest, self.config.floor_clearance)
+            return PlannedTrajectory(goal.goal_id, None, False, FLOOR_REASON, revision, result.timings["total"],
+                                     motion="plan")
         return PlannedTrajectory(goal.goal_id, result.trajectory.shifted(t), True, "", revision,
                                  result.timings["total"], motion="plan")
 
@@ -330,7 +367,8 @@ class PlannerSystem(LeafSystem):
         refresh = goal.goal_id != plan.goal_id or t - self._env_time >= self._config.recheck_period - 1e-9
         if refresh:
             try:
-                self._env_revision = self._set_map(snapshot, p_WT)
+                grasping = goal.phase in GRASP_PHASES
+                self._env_revision = self._set_map(snapshot, p_WT if grasping else None)
             except ValueError as e:
                 _log.error("WholeBodyPlanner: bad map (%s)", e)
                 return EventStatus.Succeeded()
