@@ -377,6 +377,19 @@ class AntipodalGraspSampler:
         )
 
 
+@numba.njit(cache=True, inline="always")
+def _tip_coordinates(points: np.ndarray, n: int, X_WG: np.ndarray, k: int, fingertip_x: float):
+    """Point n in grasp frame k: (squared distance to its origin, x relative to
+    the fingertips, y, z)."""
+    dx = points[n, 0] - X_WG[k, 0, 3]
+    dy = points[n, 1] - X_WG[k, 1, 3]
+    dz = points[n, 2] - X_WG[k, 2, 3]
+    x = X_WG[k, 0, 0] * dx + X_WG[k, 1, 0] * dy + X_WG[k, 2, 0] * dz - fingertip_x
+    y = X_WG[k, 0, 1] * dx + X_WG[k, 1, 1] * dy + X_WG[k, 2, 1] * dz
+    z = X_WG[k, 0, 2] * dx + X_WG[k, 1, 2] * dy + X_WG[k, 2, 2] * dz
+    return dx * dx + dy * dy + dz * dz, x, y, z
+
+
 @numba.njit(cache=True, parallel=True)
 def _clearance_kernel(
     points: np.ndarray,
@@ -414,18 +427,11 @@ def _clearance_kernel(
         y_neg = 0.0
         free = True
         for n in range(points.shape[0]):
-            dx = points[n, 0] - X_WG[k, 0, 3]
-            dy = points[n, 1] - X_WG[k, 1, 3]
-            dz = points[n, 2] - X_WG[k, 2, 3]
-            if dx * dx + dy * dy + dz * dz > reach2:
+            r2, x, y_signed, z_signed = _tip_coordinates(points, n, X_WG, k, fingertip_x)
+            if r2 > reach2 or x > 0.0 or x < -finger_length - palm_sweep:
                 continue
-            # x relative to the fingertips.
-            x = X_WG[k, 0, 0] * dx + X_WG[k, 1, 0] * dy + X_WG[k, 2, 0] * dz - fingertip_x
-            if x > 0.0 or x < -finger_length - palm_sweep:
-                continue
-            y_signed = X_WG[k, 0, 1] * dx + X_WG[k, 1, 1] * dy + X_WG[k, 2, 1] * dz
             y = abs(y_signed)
-            z = abs(X_WG[k, 0, 2] * dx + X_WG[k, 1, 2] * dy + X_WG[k, 2, 2] * dz)
+            z = abs(z_signed)
             if x >= -finger_length:
                 if z <= 0.5 * finger_width:
                     if y < inner:
@@ -450,17 +456,10 @@ def _clearance_kernel(
             z_low = 0.0
             z_high = 0.0
             for n in range(points.shape[0]):
-                dx = points[n, 0] - X_WG[k, 0, 3]
-                dy = points[n, 1] - X_WG[k, 1, 3]
-                dz = points[n, 2] - X_WG[k, 2, 3]
-                if dx * dx + dy * dy + dz * dz > reach2:
-                    continue
-                y_signed = X_WG[k, 0, 1] * dx + X_WG[k, 1, 1] * dy + X_WG[k, 2, 1] * dz
+                r2, x, y_signed, z_signed = _tip_coordinates(points, n, X_WG, k, fingertip_x)
                 y_side = y_signed if side == 0 else -y_signed
-                if y_side < extreme - contact_band or y_side > extreme:
+                if r2 > reach2 or y_side < extreme - contact_band or y_side > extreme:
                     continue
-                x = X_WG[k, 0, 0] * dx + X_WG[k, 1, 0] * dy + X_WG[k, 2, 0] * dz - fingertip_x
-                z_signed = X_WG[k, 0, 2] * dx + X_WG[k, 1, 2] * dy + X_WG[k, 2, 2] * dz
                 if x > 0.0 or x < -finger_length or abs(z_signed) > 0.5 * finger_width:
                     continue
                 count += 1
