@@ -119,3 +119,22 @@ def test_compiled_synchronization_and_held_arm_densification_match_numpy():
         want = densify(Q, checker)
         np.testing.assert_array_equal(dense, want[:, :3])  # the very states `densify` gives
         np.testing.assert_allclose(dense[index], poses, rtol=0.0, atol=1e-12)
+
+
+def test_one_pass_coarse_free_grid_matches_the_two_pass_one():
+    from vamg_drake.planning import hybrid_astar as ha
+    from vamg_drake.planning.whole_body_planner import WholeBodyPlanner
+    from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment
+    from vamg_drake.planning.problems import room_problem
+
+    base = CollisionChecker.for_fetch(CollisionEnvironment())
+    problem = room_problem(5, base)
+    planner = WholeBodyPlanner.for_fetch(CollisionEnvironment.from_primitives(problem.obstacles))
+    search = planner._base_planner(problem.q_start[:3], problem.q_goal[:3])
+    free = search._free_mask()
+    assert 0.1 < free.mean() < 0.9
+    for factor in (1, 3, 4, 7):
+        np.testing.assert_array_equal(
+            ha._coarse_footprint_free(search._layers, search.costmap.margin, search._disc_thresholds(),
+                                      search._band, factor),
+            ha._coarse_free(free, factor))

@@ -269,6 +269,33 @@ def _footprint_free(layers, margin, thr, band, out):
 
 
 @numba.njit(cache=True)
+def _coarse_footprint_free(layers, margin, thr, band, factor):
+    """`_coarse_free(_footprint_free(...), factor)` in one pass (each block
+    scanned until one of its cells is free)."""
+    nx, ny = layers.shape[1], layers.shape[2]
+    cx = (nx + factor - 1) // factor
+    cy = (ny + factor - 1) // factor
+    out = np.zeros((cx, cy), dtype=np.bool_)
+    for a in range(cx):
+        for b in range(cy):
+            found = False
+            for i in range(a * factor, min((a + 1) * factor, nx)):
+                for j in range(b * factor, min((b + 1) * factor, ny)):
+                    ok = True
+                    for k in range(thr.shape[0]):
+                        if not layers[band[k], i, j] - margin > thr[k]:
+                            ok = False
+                            break
+                    if ok:
+                        found = True
+                        break
+                if found:
+                    break
+            out[a, b] = found
+    return out
+
+
+@numba.njit(cache=True)
 def _coarse_free(free, factor):
     """A grid `factor` times coarser: a coarse cell is free when any of its cells is."""
     nx, ny = free.shape
@@ -607,10 +634,10 @@ class HybridAStar:
         direct = self.reeds_shepp(start, goal, c.max_analytic_reverse)
         if direct is not None:
             return BasePath(direct, 0), ""
-        free = self._free_mask()
-        nx, ny = free.shape
+        nx, ny = cm.shape
+        free = None  # no start/goal zones: the coarse grid straight from the layers (cached)
         if self._exempt.shape[0]:
-            free = free.copy()
+            free = self._free_mask().copy()
             gx = cm.origin[0] + cm.resolution * np.arange(nx)
             gy = cm.origin[1] + cm.resolution * np.arange(ny)
             for ex, ey in self._exempt:
@@ -639,23 +666,31 @@ class HybridAStar:
         every disc centre lies within |offset| + h of the cell centre)."""
         if self._free is None:
             cm = self.costmap
-            thr = np.array([r - math.hypot(x, y) - cm.resolution - self._slack for x, y, r in self._discs])
-            self._free = _footprint_free(self._layers, cm.margin, thr, self._band, np.ones(cm.shape, bool))
+            self._free = _footprint_free(self._layers, cm.margin, self._disc_thresholds(), self._band,
+                                         np.ones(cm.shape, bool))
         return self._free
 
-    def _heuristic_grid(self, free: np.ndarray, goal: np.ndarray) -> tuple[np.ndarray, int, float]:
+    def _disc_thresholds(self) -> np.ndarray:
+        """Per disc the clearance a cell needs in `_free_mask`."""
+        cm = self.costmap
+        return np.array([r - math.hypot(x, y) - cm.resolution - self._slack for x, y, r in self._discs])
+
+    def _heuristic_grid(self, free: np.ndarray | None, goal: np.ndarray) -> tuple[np.ndarray, int, float]:
         """Obstacle-aware distances to the goal on a grid `factor` times
         coarser than the costmap (cells of about `heuristic_cell` m; a coarse
-        cell is free when any of its cells is: an underestimate).
+        cell is free when any of its cells is in `free`, default
+        `_free_mask`: an underestimate).
 
         Returns (distances (cx, cy) [m], factor, slack [m]): the distance of
         a fine cell (i, j) is at least dist[i // factor, j // factor] - slack
         (cell centres sit up to `slack` from their coarse cell's centre)."""
         cm = self.costmap
         factor = max(int(round(self.config.heuristic_cell / cm.resolution)), 1)
-        if free is self._free:  # no start/goal zones: the same for every goal
+        if free is None:  # `_free_mask`, coarsened in one pass: the same for every goal
             if self._coarse is None or self._coarse[0] != factor:
-                self._coarse = (factor, _coarse_free(free, factor))
+                cm = self.costmap
+                self._coarse = (factor, _coarse_footprint_free(self._layers, cm.margin, self._disc_thresholds(),
+                                                               self._band, factor))
             coarse = self._coarse[1]
         else:
             coarse = _coarse_free(free, factor)
