@@ -138,3 +138,32 @@ def test_one_pass_coarse_free_grid_matches_the_two_pass_one():
             ha._coarse_footprint_free(search._layers, search.costmap.margin, search._disc_thresholds(),
                                       search._band, factor),
             ha._coarse_free(free, factor))
+
+
+def test_grid_dijkstra_matches_scipy():
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    from vamg_drake.planning.hybrid_astar import _dijkstra_2d
+
+    rng = np.random.default_rng(8)
+    for _ in range(5):
+        nx, ny = rng.integers(5, 40, 2)
+        free = rng.random((nx, ny)) > 0.3
+        gi, gj = int(rng.integers(0, nx)), int(rng.integers(0, ny))
+        free[gi, gj] = True
+        rows, cols, w = [], [], []
+        for i in range(nx):
+            for j in range(ny):
+                for di in (-1, 0, 1):
+                    for dj in (-1, 0, 1):
+                        a, b = i + di, j + dj
+                        if (di or dj) and 0 <= a < nx and 0 <= b < ny and free[i, j] and free[a, b]:
+                            rows.append(i * ny + j)
+                            cols.append(a * ny + b)
+                            w.append(0.1 * np.hypot(di, dj))
+        graph = coo_matrix((w, (rows, cols)), shape=(nx * ny, nx * ny)).tocsr()
+        want = dijkstra(graph, indices=gi * ny + gj).reshape(nx, ny)
+        got = _dijkstra_2d(free, gi, gj, 0.1)
+        np.testing.assert_array_equal(np.isinf(got), np.isinf(want))
+        np.testing.assert_allclose(got[np.isfinite(got)], want[np.isfinite(want)], rtol=0.0, atol=1e-9)

@@ -229,16 +229,39 @@ def _poses_free(poses, layers, origin, h, margin, discs, band, exempt, exempt_r,
 
 @numba.njit(cache=True)
 def _dijkstra_2d(free, gi, gj, h):
-    """8-connected grid distances [m] from cell (gi, gj) over free cells."""
+    """8-connected grid distances [m] from cell (gi, gj) over free cells
+    (a binary heap on flat arrays of (distance, cell), lazy deletion)."""
     nx, ny = free.shape
     dist = np.full((nx, ny), np.inf)
     if not (0 <= gi < nx and 0 <= gj < ny):
         return dist
     dist[gi, gj] = 0.0
-    heap = [(0.0, gi, gj)]
+    cap = 8 * nx * ny + 1
+    key = np.empty(cap)
+    val = np.empty(cap, np.int64)
+    key[0], val[0] = 0.0, gi * ny + gj
+    n = 1
     diag = math.sqrt(2.0) * h
-    while len(heap) > 0:
-        d, i, j = heapq.heappop(heap)
+    while n > 0:
+        d, c = key[0], val[0]
+        # pop: the last element sifted down from the root
+        n -= 1
+        if n > 0:
+            kk, vv = key[n], val[n]
+            p = 0
+            while True:
+                ch = 2 * p + 1
+                if ch >= n:
+                    break
+                if ch + 1 < n and key[ch + 1] < key[ch]:
+                    ch += 1
+                if key[ch] < kk:
+                    key[p], val[p] = key[ch], val[ch]
+                    p = ch
+                else:
+                    break
+            key[p], val[p] = kk, vv
+        i, j = c // ny, c % ny
         if d > dist[i, j]:
             continue
         for di in range(-1, 2):
@@ -252,7 +275,17 @@ def _dijkstra_2d(free, gi, gj, h):
                 nd = d + (diag if (di != 0 and dj != 0) else h)
                 if nd < dist[a, b]:
                     dist[a, b] = nd
-                    heapq.heappush(heap, (nd, a, b))
+                    # push: sift up
+                    p = n
+                    n += 1
+                    while p > 0:
+                        q = (p - 1) // 2
+                        if key[q] > nd:
+                            key[p], val[p] = key[q], val[q]
+                            p = q
+                        else:
+                            break
+                    key[p], val[p] = nd, a * ny + b
     return dist
 
 
