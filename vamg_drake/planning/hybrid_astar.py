@@ -575,10 +575,19 @@ class HybridAStar:
         self._coarse = None
 
     def poses_free(self, poses: np.ndarray) -> bool:
+        """Every pose (M, 3) is free (see the module docstring): the 2D test,
+        then the exact checks it leaves (their data tuples are passed only
+        then: ~150 arrays cost ~10 us per call from Python)."""
         cm = self.costmap
-        return bool(_poses_free(np.ascontiguousarray(poses, float), self._layers, cm.origin, cm.resolution,
-                                cm.margin, self._discs, self._band, self._exempt, self._exempt_r,
-                                self._exempt_exact, self.exact, self._exact_zone, self._slack))
+        poses = np.ascontiguousarray(poses, float)
+        need = np.empty(poses.shape[0], np.int64)
+        has_exact = self.exact is not None
+        if not _poses_2d(poses, self._layers, cm.origin, cm.resolution, cm.margin, self._discs, self._band,
+                         self._exempt, self._exempt_r, self._exempt_exact, has_exact, self._slack, need):
+            return False
+        if not has_exact or not need.any():
+            return True
+        return bool(_poses_exact(poses, need, self.exact, self._exact_zone))
 
     def warm_up(self) -> None:
         """Runs the compiled exact pose checks once (see `WholeBodyPlanner.warm_up`)."""
