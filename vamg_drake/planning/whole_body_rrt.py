@@ -86,6 +86,16 @@ def _motion_free(xa, xb, along, base, poses, cum, dt, lever, res, xs, data):
 
 
 @numba.njit(cache=True)
+def _segment_free(xa, xb, along, base, poses, cum, dt, lever, res, xs, data):
+    """xa itself and the straight motion xa -> xb are free (one compiled call
+    from Python: each call passes the ~50 arrays of `data`, ~8 us)."""
+    _set_state(xa, along, base, poses, cum, dt, data[0][0])
+    if not _state_free(data):
+        return False
+    return _motion_free(xa, xb, along, base, poses, cum, dt, lever, res, xs, data)
+
+
+@numba.njit(cache=True)
 def _check_at(k, n, xa, xb, along, base, poses, cum, dt, xs, q, data):
     s = k / n
     for a in range(xa.shape[0]):
@@ -235,12 +245,8 @@ class WholeBodySearchSpace:
         """The straight motion xa -> xb is free (both ends included)."""
         xa = np.ascontiguousarray(xa, dtype=float)
         xb = np.ascontiguousarray(xb, dtype=float)
-        q = self.data[0][0]
-        _set_state(xa, self.along, self.base, self.poses, self.cum, self.dt, q)
-        if not _state_free(self.data):
-            return False
-        return bool(_motion_free(xa, xb, self.along, self.base, self.poses, self.cum, self.dt, self.lever,
-                                 self.res, self._xs, self.data))
+        return bool(_segment_free(xa, xb, self.along, self.base, self.poses, self.cum, self.dt, self.lever,
+                                  self.res, self._xs, self.data))
 
     def to_configurations(self, X: np.ndarray) -> np.ndarray:
         X = np.atleast_2d(np.asarray(X, float))
