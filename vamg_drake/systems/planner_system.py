@@ -109,6 +109,9 @@ class PlannerSystemConfig:
             the trajectory was invalidated (the closed-loop-replanning baseline) [s].
         linear_speed_fraction: linear motions (approach, lift) move at this
             fraction of the joint velocity limits.
+        warm_up: load the planner's compiled kernels when the system is built
+            (else the episode's first searches pay it, ~12 ms from numba's
+            cache, seconds when compiling).
         floor_clearance: a planned path whose arm spheres come closer to the
             floor than this is rejected (FAILED, `FLOOR_REASON`); the floor is
             not in the map (static s0000: the gripper touched the floor) [m].
@@ -132,6 +135,7 @@ class PlannerSystemConfig:
     linear_speed_fraction: float = 0.25
     recheck_period: float = 0.3
     floor_clearance: float = 0.02
+    warm_up: bool = True
     planner: PlannerConfig = dc.field(default_factory=PlannerConfig)
 
 
@@ -304,6 +308,8 @@ class PlannerSystem(LeafSystem):
         self._MotionFeedback = MotionFeedback
         self._config = config or PlannerSystemConfig()
         self._planner = planner or WholeBodyPlanner.for_fetch(CollisionEnvironment(), self._config.planner)
+        if self._config.warm_up:
+            self._planner.warm_up()
         self._supervisor = MotionSupervisor(self._planner, self._config, timings)
         self._goal_port = self.DeclareAbstractInputPort("goal", AbstractValue.Make(None))
         self._map_port = self.DeclareAbstractInputPort("point_map", AbstractValue.Make(None))
