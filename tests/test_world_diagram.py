@@ -147,3 +147,21 @@ def test_diagram_config_loads_from_yaml():
     )
     assert config.world.camera.width == 640 and config.world.time_step == 0.005
     assert config.scripted.speed == 0.3 and config.monitor.hold_time == 1.0
+
+
+def test_finger_pads_are_rigid_hydroelastic():
+    """The pads make contact patches with the compliant objects (as point
+    contacts they squeezed objects out of the grasp); the palm stays a point
+    contact geometry."""
+    from pydrake.systems.framework import DiagramBuilder
+
+    from vamg_drake.world.world_builder import WorldConfig, build_world
+
+    for fingers in (True, False):
+        builder = DiagramBuilder()
+        world = build_world(builder, box_room_scenario(), WorldConfig(enable_camera=False, hydroelastic_fingers=fingers))
+        inspector = world.scene_graph.model_inspector()
+        for link, expected in (("l_gripper_finger_link", fingers), ("r_gripper_finger_link", fingers),
+                               ("gripper_link", False)):
+            for g in world.plant.GetCollisionGeometriesForBody(world.plant.GetBodyByName(link, world.robot)):
+                assert inspector.GetProximityProperties(g).HasGroup("hydroelastic") == expected, link

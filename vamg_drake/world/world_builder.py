@@ -16,13 +16,16 @@ import logging
 
 import numpy as np
 from pydrake.geometry import (
+    AddRigidHydroelasticProperties,
     ClippingRange,
     ColorRenderCamera,
     DepthRange,
     DepthRenderCamera,
     MakeRenderEngineVtk,
+    ProximityProperties,
     RenderCameraCore,
     RenderEngineVtkParams,
+    RoleAssign,
     SceneGraph,
 )
 from pydrake.math import RigidTransform
@@ -35,6 +38,7 @@ from pydrake.systems.sensors import CameraInfo, RgbdSensor
 from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics, HeadCameraConfig
 from vamg_drake.robot.kinematics import CAMERA_FRAME, EXTENDED_JOINTS, NX, fetch_urdf_path
+from vamg_drake.world.episode_monitor import FINGER_LINKS
 from vamg_drake.world.scenario import Scenario
 from vamg_drake.world.scene_geometry import SceneGeometryConfig, SceneHandles, add_scene
 
@@ -75,6 +79,12 @@ class WorldConfig:
     #: pan motor's 0.32 N m effort limit capped the pan at 0.64 rad/s, far below
     #: the 1.57 rad/s the gaze optimizer plans with (measured in an episode).
     head_joint_damping: float = 0.05
+    #: The finger pads are rigid hydroelastic boxes, so that against the
+    #: (compliant hydroelastic) objects they make contact patches. As plain
+    #: point contacts, squeezed into a compliant object with up to 60 N, their
+    #: contact normals tilted ~30 deg off the pad and the object slid out along
+    #: the approach (box room: the tomato soup can left the closing fingers).
+    hydroelastic_fingers: bool = True
 
 
 @dc.dataclass
@@ -123,6 +133,17 @@ def initial_robot_configuration(scenario: Scenario) -> np.ndarray:
     return V
 
 
+def _make_fingers_hydroelastic(plant: MultibodyPlant, scene_graph: SceneGraph, robot: ModelInstanceIndex) -> None:
+    """Gives the finger links' collision geometries rigid hydroelastic
+    properties (keeping their friction)."""
+    inspector = scene_graph.model_inspector()
+    for name in FINGER_LINKS:
+        for geometry in plant.GetCollisionGeometriesForBody(plant.GetBodyByName(name, robot)):
+            props = ProximityProperties(inspector.GetProximityProperties(geometry))
+            AddRigidHydroelasticProperties(props)
+            scene_graph.AssignRole(plant.get_source_id(), geometry, props, RoleAssign.kReplace)
+
+
 def build_world(builder: DiagramBuilder, scenario: Scenario, config: WorldConfig | None = None) -> World:
     """Adds plant, scene graph, robot, scene and head camera to `builder`."""
     config = config or WorldConfig()
@@ -133,6 +154,8 @@ def build_world(builder: DiagramBuilder, scenario: Scenario, config: WorldConfig
     for name in ("head_pan_joint", "head_tilt_joint"):
         plant.GetJointByName(name, robot).set_default_damping(config.head_joint_damping)
     plant.set_gravity_enabled(robot, False)
+    if config.hydroelastic_fingers:
+        _make_fingers_hydroelastic(plant, scene_graph, robot)
     # (GetJointActuatorIndices() is empty before Finalize(): walk all actuators.)
     for i in range(plant.num_actuators()):
         actuator = plant.get_mutable_joint_actuator(JointActuatorIndex(i))
