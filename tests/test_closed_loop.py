@@ -6,12 +6,12 @@ exception is a recorded planning failure.
 These run whole episodes of the real diagram (Drake physics, rendering, map,
 policy, planner, tracker), so each takes one to three minutes on two cores.
 
-Two episodes are marked xfail (not strict: an XPASS is reported when they
-succeed). The box-room grasp succeeds since session 4 (rigid hydroelastic
-finger pads; before, every squeezed object slid out of the point-contact
-fingers), kept xfail until it has a longer record; the unreachable-target
-episode can meet furniture or walls it has not seen while observing. See the
-issue-6 notes.
+The box-room grasp is marked xfail (not strict: an XPASS is reported when it
+succeeds): it succeeds since session 4 (rigid hydroelastic finger pads;
+before, every squeezed object slid out of the point-contact fingers) and stays
+marked until it has a longer record. The unreachable target ends as
+reachability since session 4 (it was reported as perception: the camera cannot
+see a target on a 2.2 m cabinet either).
 """
 
 from pathlib import Path
@@ -56,8 +56,6 @@ def test_full_system_grasps_and_lifts_in_a_generated_benchmark_room(tmp_path):
     assert result.status == SUCCESS, (result.status, result.kind, result.detail, result.phases)
 
 
-@pytest.mark.xfail(strict=False, reason="open (issue 6): while observing, the torso can meet an unseen wall "
-                                        "before the tree gives up as reachability")
 def test_unreachable_target_ends_as_reachability(tmp_path):
     """The target stands on a 2.2 m high cabinet top: no base pose puts it in reach."""
     scenario = box_room_scenario(time_limit=90.0)

@@ -155,6 +155,18 @@ def test_perception_category_when_no_grasp_candidates() -> None:
     assert cmd.failure == FailureCategory.PERCEPTION
 
 
+def test_an_unreachable_target_is_reachability_even_when_unseen() -> None:
+    """No pre-grasp sample reaches the target (capability and IK both 0) and
+    the camera saw none of it: reachability, the cause no view would remove."""
+    samplers = SubgoalSamplers(
+        ScriptedSampler("grasp", [False], FailureCategory.PERCEPTION),
+        ScriptedSampler("pregrasp", [False], FailureCategory.REACHABILITY),
+        ScriptedSampler("observe", [False]),
+    )
+    cmd = SubgoalBehaviour(samplers).step(_inputs())
+    assert cmd.failure == FailureCategory.REACHABILITY
+
+
 def test_sampler_exception_is_a_recorded_failure() -> None:
     def broken(inputs):
         raise RuntimeError("boom")

@@ -433,10 +433,13 @@ class SubgoalBehaviour:
             return FailureCategory.PLANNING, reasons
         grasp_cat = state.last_failures.get(Stage.GRASP, ("", FailureCategory.NONE))[1]
         pre_cat = state.last_failures.get(Stage.PREGRASP, ("", FailureCategory.NONE))[1]
-        if grasp_cat == FailureCategory.PERCEPTION:
-            return FailureCategory.PERCEPTION, reasons
+        # A target no pre-grasp sample reaches is out of reach whatever the
+        # camera saw of it (a target on a 2.2 m cabinet is also unseen from
+        # below: it was reported as perception).
         if pre_cat in (FailureCategory.REACHABILITY, FailureCategory.IK):
             return pre_cat, reasons
+        if grasp_cat == FailureCategory.PERCEPTION:
+            return FailureCategory.PERCEPTION, reasons
         return FailureCategory.SUBGOAL, reasons
 
     # -- bookkeeping --------------------------------------------------------
