@@ -9,6 +9,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
 
 from vamg_drake.perception.raycast_map import PointMapSnapshot
+from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment
 from vamg_drake.planning.whole_body_planner import PlannerConfig
 from vamg_drake.policy.behaviour_tree import MotionEvent, Phase, SubgoalCommand
 from vamg_drake.robot import layout
@@ -103,12 +104,13 @@ def test_the_target_exempts_the_gripper_only_while_moving_to_a_grasp():
 def test_arm_floor_clearance_sees_the_gripper_on_the_floor():
     """The floor is not in the map: the motion layer measures how low the arm's
     spheres go (the base's own spheres, which reach below the floor, excluded)."""
+    checker = CollisionChecker.for_fetch(CollisionEnvironment())
     q = layout.stow_configuration(0.0, 0.0, 0.0)
-    assert arm_floor_clearance(q[None]) > 0.2
+    assert arm_floor_clearance(checker, q[None]) > 0.2
     down = q.copy()
     down[layout.TORSO] = 0.0
     down[layout.ARM] = [0.0, 1.5, 0.0, 0.0, 0.0, 0.0, 0.0]  # shoulder lifted down: the arm points at the floor
-    assert arm_floor_clearance(np.stack([q, down])) < 0.0
+    assert arm_floor_clearance(checker, np.stack([q, down])) < 0.0
 
 
 def test_hold_goal_stops_the_robot():

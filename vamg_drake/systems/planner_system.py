@@ -10,6 +10,7 @@ INVALIDATED to the policy. The pure decision logic lives in `MotionSupervisor`
 """
 
 import dataclasses as dc
+import functools
 import logging
 import time
 import traceback
@@ -18,7 +19,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem
 
-from vamg_drake.planning.collision import CollisionEnvironment
+from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment
 from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig, WholeBodyPlanner
 from vamg_drake.policy.behaviour_tree import GRASP_PHASES, MotionEvent, SubgoalCommand
@@ -39,16 +40,23 @@ ARM_LINKS = ("shoulder_pan_link", "shoulder_lift_link", "upperarm_roll_link", "e
              "forearm_roll_link", "wrist_flex_link", "wrist_roll_link", "gripper_link")
 
 
-def arm_floor_clearance(path: np.ndarray) -> float:
-    """The lowest point of the arm's spheres over the configurations path (K, 11) [m].
+@functools.cache
+def _arm_spheres() -> tuple[np.ndarray, np.ndarray]:
+    """(mask (S,), unpadded radii (S,)) of the sphere model's arm spheres."""
+    spheres = SphereModel.load()
+    return np.isin(np.asarray(spheres.link_names)[spheres.link_index], ARM_LINKS), spheres.radius
+
+
+def arm_floor_clearance(checker: CollisionChecker, path: np.ndarray) -> float:
+    """The lowest point of the arm's (unpadded) spheres over the configurations
+    path (K, 11) [m], from the checker's compiled sphere centres.
 
     The map drops the floor (its points are not obstacles), so the planner's
     checker does not see it; the motion layer checks planned paths against it.
     """
-    spheres = SphereModel.load()
-    arm = np.isin(np.asarray(spheres.link_names)[spheres.link_index], ARM_LINKS)
-    centres = spheres.world_spheres(np.atleast_2d(path))[:, arm]
-    return float(np.min(centres[..., 2] - spheres.radius[arm]))
+    arm, radius = _arm_spheres()
+    centres = checker.sphere_centers(np.atleast_2d(path))[:, arm]
+    return float(np.min(centres[..., 2] - radius[arm]))
 
 
 @dc.dataclass(frozen=True, eq=False)
@@ -263,7 +271,7 @@ class MotionSupervisor:
                          result.message)
             return PlannedTrajectory(goal.goal_id, None, False, result.reason or FailureReason.TIMEOUT, revision,
                                      result.timings["total"], motion="plan")
-        lowest = arm_floor_clearance(result.trajectory.q)
+        lowest = arm_floor_clearance(self.planner.checker, result.trajectory.q)
         if lowest < self.config.floor_clearance:
             _log.warning("WholeBodyPlanner t=%.2f: goal %d: the planned path takes the arm %.3f m from the floor "
                          "(needs %.3f); rejected", t, goal.goal_id, lowest, self.config.floor_clearance)
