@@ -27,6 +27,8 @@ report, and decides the outcome. The statuses are the paper's categories:
 
 import dataclasses as dc
 
+from vamg_drake.robot.spheres import FINGER_LINKS
+
 RUNNING = "running"
 SUCCESS = "success"
 COLLISION = "collision"
@@ -127,8 +129,7 @@ class EpisodeOutcome:
 #: Policy phases (`PolicyReport.phase`) at and after grasp initiation: the
 #: linear approach from the pre-grasp pose, closing, lifting, done.
 GRASP_INITIATED_PHASES = ("grasp_approach", "grasp_close", "grasp_lift", "succeeded")
-#: Robot links allowed to touch anything (the fingers).
-FINGER_LINKS = ("l_gripper_finger_link", "r_gripper_finger_link")
+#: Robot links allowed to touch anything are the fingers (`FINGER_LINKS`).
 GRIPPER_LINKS = ("gripper_link",) + FINGER_LINKS
 
 

@@ -38,7 +38,7 @@ from pydrake.systems.sensors import CameraInfo, RgbdSensor
 from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics, HeadCameraConfig
 from vamg_drake.robot.kinematics import CAMERA_FRAME, EXTENDED_JOINTS, NX, fetch_urdf_path
-from vamg_drake.world.episode_monitor import FINGER_LINKS
+from vamg_drake.robot.spheres import FINGER_LINKS
 from vamg_drake.world.scenario import Scenario
 from vamg_drake.world.scene_geometry import SceneGeometryConfig, SceneHandles, add_scene
 
