@@ -131,9 +131,9 @@ class AntipodalGraspConfig:
     #: Contact midpoint positions along x of G tried in turn (0: the middle of
     #: the pads; > 0: the gripper held back so the contacts sit nearer the
     #: fingertips). A candidate whose mid-pad grasp collides is retried at the
-    #: next offset: a 4.7 cm marble on a table has no mid-pad grasp (the
+    #: next offset: a ball under ~6 cm on a table has no mid-pad grasp (the
     #: fingertips or the 8 cm palm reach below its centre into the table top)
-    #: but has top-down grasps 1-2 cm further out [m].
+    #: but has top-down grasps 1-2 cm further out (test with a 4.7 cm ball) [m].
     contact_offsets: list[float] = dc.field(default_factory=lambda: [0.0, 0.01, 0.02])
     #: Number of seed contact points.
     num_seeds: int = 250
@@ -346,9 +346,8 @@ class AntipodalGraspSampler:
     def _clearance_ok(self, points: np.ndarray, X_WG: np.ndarray, width: np.ndarray,
                       normals: np.ndarray | None = None) -> np.ndarray:
         """True where the fingers' closing sweep and the palm's approach sweep are
-        point-free and the pads' middle is over the object (`min_pad_span`; with
-        `normals`, only points whose normal lies in the friction cone of the
-        closing axis are contact-surface points)."""
+        point-free and the pads' first contacts hold (`_clearance_kernel`); without
+        `normals` the first contacts' friction-cone test is skipped."""
         cfg = self.config
         g = cfg.gripper
         if normals is None:
