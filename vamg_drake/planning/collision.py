@@ -1580,24 +1580,26 @@ def densify(path: np.ndarray, checker: CollisionChecker, resolution: float | Non
     if path.shape[0] < 2:
         return path.copy()
     res = checker.config.motion_resolution if resolution is None else resolution
-    return _densify(np.ascontiguousarray(path), np.ascontiguousarray(checker.lever, dtype=float), float(res))
+    return densify_indexed(np.ascontiguousarray(path), np.ascontiguousarray(checker.lever, dtype=float), float(res))[0]
 
 
 @numba.njit(cache=True)
-def _densify(path, lever, res):
-    """`densify`: per segment max(ceil(bound / res), 1) steps, where bound is
+def densify_indexed(path, lever, res):
+    """`densify` as a compiled kernel over levers (dim,): per segment
+    max(ceil(bound / res), 1) steps, where bound is
     `CollisionChecker.sphere_displacement_bound` (planar x, y norm plus the
-    levers of the other coordinates)."""
+    levers of the other coordinates). Returns the dense path and the dense
+    index (N,) of every input state."""
     n, dim = path.shape
     counts = np.empty(n - 1, np.int64)
-    total = 0
+    index = np.zeros(n, np.int64)
     for k in range(n - 1):
         d = math.hypot(path[k + 1, 0] - path[k, 0], path[k + 1, 1] - path[k, 1])
         for j in range(2, dim):
             d += abs(path[k + 1, j] - path[k, j]) * lever[j]
         counts[k] = max(int(math.ceil(d / res)), 1)
-        total += counts[k]
-    out = np.empty((total + 1, dim))
+        index[k + 1] = index[k] + counts[k]
+    out = np.empty((index[n - 1] + 1, dim))
     out[0] = path[0]
     m = 1
     for k in range(n - 1):
@@ -1607,4 +1609,4 @@ def _densify(path, lever, res):
             for a in range(dim):
                 out[m, a] = path[k, a] + f * (path[k + 1, a] - path[k, a])
             m += 1
-    return out
+    return out, index

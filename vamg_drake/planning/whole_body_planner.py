@@ -65,7 +65,7 @@ import numpy as np
 from vamg_drake.planning import smoothing, whole_body_rrt
 from vamg_drake.planning.arm_roadmap import ArmRoadmap
 from vamg_drake.planning.base_costmap import base_costmap
-from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment, densify
+from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment, densify, densify_indexed
 from vamg_drake.planning.hybrid_astar import Footprint2D, HybridAStar, HybridAStarConfig
 from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.planning.whole_body_rrt import KernelRRTConfig, RRTConnectSearch, WholeBodySearchSpace
@@ -200,30 +200,11 @@ def _wrap_arm(arm: np.ndarray) -> np.ndarray:
     return out
 
 
-@numba.njit(cache=True)
-def _densify_poses(poses, lever_theta, res):
+def _densify_poses(poses: np.ndarray, lever_theta: float, res: float) -> tuple[np.ndarray, np.ndarray]:
     """`densify` of base poses (M, 3) with the torso + arm held (their sphere
     displacement bound is the planar step + |d theta| * lever_theta): the
     dense poses (N, 3) and the dense index (M,) of every pose."""
-    m = poses.shape[0]
-    counts = np.empty(m - 1, np.int64)
-    index = np.zeros(m, np.int64)
-    for k in range(m - 1):
-        d = math.hypot(poses[k + 1, 0] - poses[k, 0], poses[k + 1, 1] - poses[k, 1]) \
-            + abs(poses[k + 1, 2] - poses[k, 2]) * lever_theta
-        counts[k] = max(int(math.ceil(d / res)), 1)
-        index[k + 1] = index[k] + counts[k]
-    out = np.empty((index[m - 1] + 1, 3))
-    out[0] = poses[0]
-    n = 1
-    for k in range(m - 1):
-        c = counts[k]
-        for i in range(1, c + 1):
-            f = i / c
-            for a in range(3):
-                out[n, a] = poses[k, a] + f * (poses[k + 1, a] - poses[k, a])
-            n += 1
-    return out, index
+    return densify_indexed(poses, np.array([0.0, 0.0, lever_theta]), res)
 
 
 @numba.njit(cache=True)
