@@ -32,6 +32,7 @@ from vamg_drake.control.whole_body_tracker import (
 from vamg_drake.planning.smoothing import time_parametrize
 from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.robot import layout
+from vamg_drake.robot.spheres import SphereModel
 from vamg_drake.systems.robot_command import RobotCommandIntegrator
 from vamg_drake.systems.robot_state import RobotStateSelector
 from vamg_drake.systems.tracker_system import WholeBodyTracker
@@ -211,12 +212,59 @@ def test_a_three_point_turn_with_a_lateral_offset_at_the_cusp_is_finished():
     times, q = data["times"], data["q"]
     finish = {}
     for tolerance in (1e-3, TrackerConfig().cusp_lateral_tolerance):
-        core = WholeBodyTrackerCore(TrackerConfig(cusp_lateral_tolerance=tolerance))
+        # Corners off and the paper's gain at stops: this is about the cusp tolerance alone.
+        core = WholeBodyTrackerCore(TrackerConfig(cusp_lateral_tolerance=tolerance, corner_angle=np.pi, stop_gain=1.0))
         assert core.set_trajectory(times, q, q[0]) == ""
         ro = rollout(core, q[0], times[-1] + 8.0)
         assert ro.done
         finish[tolerance] = ro.times[-1]
     assert finish[TrackerConfig().cusp_lateral_tolerance] < finish[1e-3] - 1.0
+
+
+def test_gripper_stays_near_a_curved_whole_body_path():
+    """Seed 0's motion to a pre-grasp (1202 waypoints, the base turning while
+    the arm unfolds). With the paper's law (path_error_gain 1) the gripper cut
+    the path's corners by 12.6 cm and touched the wall behind the counter."""
+    data = np.load(Path(__file__).parent / "data" / "seed0_pregrasp_motion.npz")
+    times, q, q0 = data["times"], data["q"], data["q0"]
+    spheres = SphereModel.load()
+
+    def gripper(qs):
+        return np.array([spheres.world_spheres(x)[spheres.is_gripper].mean(axis=0) for x in qs])
+
+    planned = gripper(q)
+    deviation = {}
+    for gain in (1.0, TrackerConfig().path_error_gain):
+        core = WholeBodyTrackerCore(TrackerConfig(path_error_gain=gain))
+        assert core.set_trajectory(times, q, q0) == ""
+        ro = rollout(core, q0, times[-1] - times[0] + 8.0)
+        assert ro.done
+        actual = gripper(ro.q[::2])
+        deviation[gain] = np.max(np.min(np.linalg.norm(actual[:, None] - planned[None], axis=2), axis=1))
+    assert deviation[1.0] > 0.09
+    assert deviation[TrackerConfig().path_error_gain] < 0.06
+
+
+def test_a_drive_then_an_arm_motion_has_a_corner_stop_that_is_reached():
+    """Where a base drive meets an arm motion the path turns by 90 degrees in
+    joint space: the reference waits at the corner, so the arm does not start
+    unfolding while the base is still short of the corner."""
+    s = np.linspace(0.0, 1.0, 34)
+    drive = _whole_body(np.stack([s, np.zeros_like(s), np.zeros_like(s)], axis=1))
+    unfold = drive[-1] + np.linspace(0.0, 1.0, 30)[1:, None] * np.r_[np.zeros(4), -1.2, -0.8, np.zeros(5)][None]
+    tr = time_parametrize(np.concatenate([drive, unfold]))
+    corner = drive.shape[0] - 1
+    arm_started_early = {}
+    for angle in (np.pi, TrackerConfig().corner_angle):
+        core = WholeBodyTrackerCore(TrackerConfig(corner_angle=angle))
+        assert core.set_trajectory(tr.times, tr.q, tr.q[0]) == ""
+        assert len(core._stops) == (1 if angle == np.pi else 2)
+        ro = rollout(core, tr.q[0], tr.duration + 5.0)
+        assert ro.done
+        short = ro.q[:, 0] < tr.q[corner, 0] - 0.03  # the base still 3 cm short of the corner
+        arm_started_early[angle] = float(np.max(np.abs(ro.q[short, 4] - tr.q[0, 4])))
+    assert arm_started_early[np.pi] > 0.05
+    assert arm_started_early[TrackerConfig().corner_angle] < 0.01
 
 
 def test_a_pause_in_the_path_does_not_stall():
