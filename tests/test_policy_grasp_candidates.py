@@ -311,3 +311,23 @@ def test_approach_interpolants_are_checked() -> None:
     args = (np.zeros(11), np.eye(4), np.zeros(3), ik, blocked_mid_approach, None)
     assert select_grasp_goal(cands, *args, GraspRankingConfig()).candidate_index == 0
     assert select_grasp_goal(cands, *args, GraspRankingConfig(check_grasp_collision=True)).candidate_index == 1
+
+
+def test_verify_rechecks_earlier_grasps_on_a_new_cloud() -> None:
+    """A grasp proposed from one view passes `verify` on a new view of the same
+    can (other points, other noise); a box in its finger sweep makes it fail."""
+    sampler = AntipodalGraspSampler()
+    can = clouds.can_cloud(center=CENTER, radius=0.033, seed=4)
+    target = can.mean(axis=0)
+    g = sampler.propose(np.concatenate([can, _table()]), target, np.random.default_rng(0))
+    assert len(g) > 10
+    other_view = np.concatenate([clouds.can_cloud(center=CENTER, radius=0.033, seed=9, noise=0.0005), _table()])
+    again = sampler.verify(other_view, target, g.X_WG[:10], g.width[:10])
+    assert again.mean() >= 0.7
+    # A block of points where the first grasp's fingers open (the +y pad's outside).
+    X = g.X_WG[0]
+    pad = X[:3, 3] + X[:3, 1] * (0.5 * GRIPPER_MAX_OPENING + 0.004)
+    block = pad + np.random.default_rng(1).uniform(-0.006, 0.006, (200, 3))
+    assert not sampler.verify(np.concatenate([other_view, block]), target, X[None], g.width[:1])[0]
+    # Too few points near the target: nothing verifies.
+    assert not sampler.verify(_table(), target, g.X_WG[:3], g.width[:3]).any()

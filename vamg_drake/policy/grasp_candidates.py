@@ -234,22 +234,13 @@ class AntipodalGraspSampler:
         p_WT = np.asarray(p_WT, dtype=float).reshape(3)
         if not np.all(np.isfinite(p_WT)):
             return GraspCandidates.empty(f"target point is not finite: {p_WT}")
-        p_WS = p_WS[np.all(np.isfinite(p_WS), axis=1)]
-        crop = p_WS[np.linalg.norm(p_WS - p_WT, axis=1) <= cfg.crop_radius]
-        crop = voxel_downsample(crop, cfg.voxel_size)
-        near = np.linalg.norm(crop - p_WT, axis=1) <= cfg.grasp_radius
+        crop, near = self._crop(p_WS, p_WT)
         if np.count_nonzero(near) < cfg.min_points:
             return GraspCandidates.empty(
                 f"too few observed points near the target: {np.count_nonzero(near)} within "
                 f"{cfg.grasp_radius} m (need {cfg.min_points})"
             )
-        # Tolerances grow with the cloud's point spacing (a map voxelized at
-        # 1-2 cm instead of a raw depth cloud); ``voxel_size`` sets the floor.
-        spacing = float(np.median(cKDTree(crop).query(crop, k=2)[0][:, 1]))
-        self._line_tolerance = max(cfg.line_tolerance, 0.75 * spacing)
-        self._margin = max(cfg.margin, 0.5 * spacing)
-        self._spacing = spacing
-        normals, _ = estimate_normals(crop, cfg.normal_neighbours)
+        normals = self._prepare(crop)
         pairs = self._antipodal_pairs(crop, normals, np.flatnonzero(near), rng)
         if pairs.shape[0] == 0:
             return GraspCandidates.empty("no antipodal contact pair within the gripper opening near the target")
@@ -286,6 +277,42 @@ class AntipodalGraspSampler:
         score = 0.7 * q_rep + 0.3 * proximity - offset
         order = np.argsort(-score, kind="stable")[: cfg.max_candidates]
         return GraspCandidates(X_WG[order], score[order], w_rep[order])
+
+    def verify(self, p_WS: np.ndarray, p_WT: np.ndarray, X_WG: np.ndarray, width: np.ndarray) -> np.ndarray:
+        """Whether grasps X_WG (K, 4, 4) of object widths `width` (K,), proposed
+        from an earlier cloud, still pass the clearance and first-contact tests
+        (`_clearance_kernel`) on the cloud p_WS around p_WT: a grasp chosen
+        from a far view is re-checked on the view from close by, even where
+        the new proposals (random antipodal pairs) do not happen to repeat it."""
+        X_WG = np.asarray(X_WG, dtype=float).reshape(-1, 4, 4)
+        crop, near = self._crop(p_WS, p_WT)
+        if np.count_nonzero(near) < self.config.min_points:
+            return np.zeros(X_WG.shape[0], dtype=bool)
+        normals = self._prepare(crop)
+        return self._clearance_ok(crop, X_WG, np.asarray(width, dtype=float).reshape(-1), normals)
+
+    def _crop(self, p_WS: np.ndarray, p_WT: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The finite points within `crop_radius` of the target, voxel-downsampled,
+        and which lie within `grasp_radius` of it."""
+        cfg = self.config
+        p_WS = np.asarray(p_WS, dtype=float).reshape(-1, 3)
+        p_WT = np.asarray(p_WT, dtype=float).reshape(3)
+        p_WS = p_WS[np.all(np.isfinite(p_WS), axis=1)]
+        crop = p_WS[np.linalg.norm(p_WS - p_WT, axis=1) <= cfg.crop_radius]
+        crop = voxel_downsample(crop, cfg.voxel_size)
+        return crop, np.linalg.norm(crop - p_WT, axis=1) <= cfg.grasp_radius
+
+    def _prepare(self, crop: np.ndarray) -> np.ndarray:
+        """Sets the tolerances from the cloud's point spacing and returns its normals."""
+        cfg = self.config
+        # Tolerances grow with the cloud's point spacing (a map voxelized at
+        # 1-2 cm instead of a raw depth cloud); ``voxel_size`` sets the floor.
+        spacing = float(np.median(cKDTree(crop).query(crop, k=2)[0][:, 1]))
+        self._line_tolerance = max(cfg.line_tolerance, 0.75 * spacing)
+        self._margin = max(cfg.margin, 0.5 * spacing)
+        self._spacing = spacing
+        normals, _ = estimate_normals(crop, cfg.normal_neighbours)
+        return normals
 
     def _clear_frames(self, points: np.ndarray, normals: np.ndarray, x_axis: np.ndarray, y_axis: np.ndarray,
                       center: np.ndarray, width: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -71,6 +71,8 @@ class SubgoalPipelineConfig:
     #: arrival) still hold one within this SE(3) distance of it (`pose_distance`,
     #: metres + 0.1 per radian); that candidate is tried (static s0003: a grasp
     #: chosen from the far, sparse view closed the fingertips on a cube's top edge).
+    #: Otherwise the aimed grasp itself is tried if the grasp source re-checks it
+    #: on the close view and it still passes (`AntipodalGraspSampler.verify`).
     aimed_grasp_match: float = 0.03
     #: Enclosure test: rays from the target, blocked by a point within
     #: ``enclosure_ray_radius`` of the ray between ``enclosure_min_distance``
@@ -192,10 +194,14 @@ class SubgoalPipeline:
         # collision re-checked; the capability map already had its say).
         goal, aimed = None, self._aimed_grasp
         if aimed is not None and np.linalg.norm(aimed[0][:2] - q[:2]) <= self.config.aimed_grasp_tolerance:
-            d = pose_distance(candidates.X_WG, aimed[1][None], self.config.ranking.rotation_weight)
+            q_aimed, X_aimed, width_aimed = aimed
+            d = pose_distance(candidates.X_WG, X_aimed[None], self.config.ranking.rotation_weight)
             match = int(np.argmin(d))
             if d[match] <= self.config.aimed_grasp_match:
                 goal = self._grasp_goal(candidates.subset([match]), q, p_WM, p_WT, capability=False)
+            elif self._still_valid(inputs, p_WM, p_WT, X_aimed, width_aimed):
+                kept = GraspCandidates(X_aimed[None], np.ones(1), np.array([width_aimed]))
+                goal = self._grasp_goal(kept, q, p_WM, p_WT, capability=False)
         if goal is None or not goal.success:
             goal = self._grasp_goal(candidates, q, p_WM, p_WT)
         if not goal.success:
@@ -203,6 +209,15 @@ class SubgoalPipeline:
             return SubgoalProposal.failure(goal.failure_reason, category)
         _, head = self.visibility.check(goal.q_pregrasp[None], p_WT)
         return SubgoalProposal(True, goal.q_pregrasp, goal.q_grasp, head[0])
+
+    def _still_valid(self, inputs: PolicyInputs, p_WM: np.ndarray, p_WT: np.ndarray, X_WG: np.ndarray,
+                     width: float) -> bool:
+        """Whether the grasp source, where it can re-check a grasp (`verify`),
+        finds grasp X_WG still clear with valid first contacts on this tick's cloud."""
+        verify = getattr(self.grasp_source, "verify", None)
+        if verify is None:
+            return False
+        return bool(verify(self._grasp_cloud(inputs, p_WM, p_WT), p_WT, X_WG[None], np.array([width]))[0])
 
     def _grasp_goal(self, candidates: GraspCandidates, q: np.ndarray, p_WM: np.ndarray, p_WT: np.ndarray,
                     capability: bool = True, is_free=None):
@@ -265,7 +280,7 @@ class SubgoalPipeline:
                 def accept(q_pre: np.ndarray) -> bool:
                     goal = self._grasp_goal(candidates, q_pre, p_WM, p_WT, is_free=is_free)
                     if goal.success:
-                        self._aimed_grasp = (q_pre, goal.X_WG)
+                        self._aimed_grasp = (q_pre, goal.X_WG, float(candidates.width[goal.candidate_index]))
                     return goal.success
 
         result = self.pregrasp.sample(p_WM, p_WT, q, is_free, self.rng, costmap=costmap,
