@@ -205,3 +205,36 @@ def test_planner_handles_costmap_bands_on_different_grids():
         simulator.AdvanceTo(t)
         plan = ed.planner.GetOutputPort("trajectory").Eval(ed.planner.GetMyContextFromRoot(simulator.get_context()))
         assert plan.reason != EXCEPTION_REASON, plan.error
+
+
+def test_a_start_put_in_collision_by_the_map_backs_out_along_the_robots_path():
+    """The robot drives 1 m along +x; then the map shows a wall through its
+    front. Planning from there fails (start in collision): the system backs
+    out along the path it came by, to a configuration the padded spheres find
+    free, and plans the goal from there."""
+    system, context = _system()
+    simulator = Simulator(system, context)
+    goal = _goal(7, layout.stow_configuration(0.0, 1.5, 0.0), "plan")
+    q_port = system.GetInputPort("robot_configuration")
+    # The drive (a held "hold" goal: the robot is moved by hand here).
+    system.GetInputPort("goal").FixValue(context, AbstractValue.Make(_goal(6, layout.stow_configuration(0, 0, 0),
+                                                                           "hold")))
+    for x in np.linspace(0.0, 1.0, 21):
+        q_port.FixValue(context, layout.stow_configuration(x, 0.0, 0.0))
+        simulator.AdvanceTo(context.get_time() + 0.1)
+    system.GetInputPort("point_map").FixValue(context, AbstractValue.Make(_wall(1.2, 0.0, 1)))
+    system.GetInputPort("goal").FixValue(context, AbstractValue.Make(goal))
+    simulator.AdvanceTo(context.get_time() + 0.1)
+    plan = system.GetOutputPort("trajectory").Eval(context)
+    assert plan.success and plan.retreat, plan.reason
+    back = plan.trajectory.q
+    assert np.all(np.diff(back[:, 0]) <= 1e-9) and back[-1, 0] < 1.0  # straight back along +x's path
+    checker = system.planner.checker
+    assert not checker.unpadded().is_free(back[:1])[0] and checker.is_free(back[-1:])[0]
+    # At the retreat's end the goal is planned from there.
+    q_port.FixValue(context, back[-1])
+    simulator.AdvanceTo(plan.trajectory.end_time + 0.2)
+    plan = system.GetOutputPort("trajectory").Eval(context)
+    assert plan.success and not plan.retreat and plan.goal_id == 7
+    np.testing.assert_allclose(plan.trajectory.q[0, :2], back[-1, :2], atol=1e-6)
+    np.testing.assert_allclose(plan.trajectory.q[-1], goal.q_goal, atol=1e-6)

@@ -20,6 +20,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem
 
 from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment
+from vamg_drake.planning.smoothing import time_parametrize
 from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig, WholeBodyPlanner
 from vamg_drake.policy.behaviour_tree import GRASP_PHASES, MotionEvent, SubgoalCommand
@@ -74,6 +75,8 @@ class PlannedTrajectory:
         replans: how often this goal was replanned after an invalidation.
         motion: the goal's motion kind ("plan", "linear", "hold").
         error: the exception text when the planner raised.
+        retreat: the trajectory backs out along the robot's own recent path
+            (the map put the start in collision); the goal is planned from its end.
     """
 
     goal_id: int = -1
@@ -85,6 +88,7 @@ class PlannedTrajectory:
     replans: int = 0
     motion: str = "hold"
     error: str = ""
+    retreat: bool = False
 
 
 @dc.dataclass
@@ -123,6 +127,12 @@ class PlannerSystemConfig:
         floor_clearance: a planned path whose arm spheres come closer to the
             floor than this is rejected (FAILED, `FLOOR_REASON`); the floor is
             not in the map (static s0000: the gripper touched the floor) [m].
+        retreat_history_time: when the map puts the start in collision (points
+            seen late, inside the sphere model that bulges past the robot's
+            geometry), the robot backs out along at most this much of its own
+            recent path [s] to the first configuration the padded spheres
+            find free, and the goal is planned from there (static s0001: three
+            pre-grasp motions failed at once and the episode ended); 0 = off.
         recheck_period: the collision environment is rebuilt from a newer map
             (and the trajectory re-checked) at most this often, except when a
             new goal must be planned at once: building the distance field of a
@@ -143,6 +153,7 @@ class PlannerSystemConfig:
     linear_speed_fraction: float = 0.25
     recheck_period: float = 0.3
     floor_clearance: float = 0.02
+    retreat_history_time: float = 20.0
     warm_up: bool = True
     planner: PlannerConfig = dc.field(default_factory=PlannerConfig)
 
@@ -186,15 +197,27 @@ class MotionSupervisor:
         self.config = config
         self.timings = timings
         self.last_replan_time = -np.inf
+        self._history: list[tuple[float, np.ndarray]] = []  # (t, q) of the robot, for retreats
+        self._retreats: dict[int, int] = {}  # retreats per goal id
 
     def tick(self, plan: PlannedTrajectory, goal: SubgoalCommand | None, q: np.ndarray, t: float,
              revision: int) -> tuple[PlannedTrajectory, MotionEvent]:
         cfg = self.config
+        self._record(q, t)
         if goal is None:
             return plan, MotionEvent.NONE
         if goal.goal_id != plan.goal_id:
             return self._start(goal, q, t, revision)
         if goal.motion == "hold" or plan.trajectory is None:
+            return plan, MotionEvent.NONE
+        if plan.retreat:
+            # Backing out along the robot's own path: then plan to the goal.
+            end = plan.trajectory.q[-1]
+            settled = np.all(np.abs(layout.wrap_configuration(q - end)) <= cfg.reach_tolerance)
+            if t >= plan.trajectory.end_time and (settled or t >= plan.trajectory.end_time + cfg.settle_time):
+                new = self._plan(goal, q, t, revision)
+                new = dc.replace(new, replans=plan.replans)
+                return new, (MotionEvent.NONE if new.success else self._failure_event(new))
             return plan, MotionEvent.NONE
         error = np.abs(layout.wrap_configuration(q - np.asarray(goal.q_goal, float)))
         if t >= plan.trajectory.end_time:
@@ -235,6 +258,37 @@ class MotionSupervisor:
             return (new if new.success else dc.replace(plan, map_revision=revision)), MotionEvent.NONE
         return new, (MotionEvent.INVALIDATED if new.success else self._failure_event(new))
 
+    def _record(self, q: np.ndarray, t: float) -> None:
+        """Keeps the robot's configurations of the last `retreat_history_time` seconds."""
+        horizon = self.config.retreat_history_time
+        if horizon <= 0.0:
+            return
+        if not self._history or np.max(np.abs(layout.wrap_configuration(q - self._history[-1][1]))) > 1e-3:
+            self._history.append((t, np.array(q, dtype=float)))
+        while self._history and self._history[0][0] < t - horizon:
+            self._history.pop(0)
+
+    def _retreat(self, goal: SubgoalCommand, q: np.ndarray) -> TimedTrajectory | None:
+        """The robot's recent path backwards from q to the latest configuration
+        the padded checker finds free (the robot was there, so the real
+        geometry between was free), at `linear_speed_fraction` of the limits;
+        None without one, or after two retreats for this goal."""
+        if self.config.retreat_history_time <= 0.0 or self._retreats.get(goal.goal_id, 0) >= 2:
+            return None
+        if len(self._history) < 2:
+            return None
+        back = np.array([h for _, h in reversed(self._history)])
+        path = [np.array(q, dtype=float)]
+        for h in back:  # unwrapped continuous joints: no 2 pi jump between waypoints
+            path.append(path[-1] + layout.wrap_configuration(h - path[-1]))
+        path = np.array(path)
+        free = np.asarray(self.planner.checker.is_free(path[1:]), dtype=bool)
+        if not free.any():
+            return None
+        path = path[: int(np.argmax(free)) + 2]
+        self._retreats[goal.goal_id] = self._retreats.get(goal.goal_id, 0) + 1
+        return time_parametrize(path, layout.V_MAX * self.config.linear_speed_fraction)
+
     @staticmethod
     def _failure_event(plan: PlannedTrajectory) -> MotionEvent:
         """A goal that the map has put in collision is invalidated (the policy
@@ -269,6 +323,14 @@ class MotionSupervisor:
         if not result.success:
             _log.warning("WholeBodyPlanner t=%.2f: goal %d failed: %s (%s)", t, goal.goal_id, result.reason,
                          result.message)
+            if result.reason == FailureReason.START_IN_COLLISION:
+                retreat = self._retreat(goal, q)
+                if retreat is not None:
+                    _log.info("motion t=%.2f: goal %d: backing out %.2f m / %d waypoints along the robot's own path",
+                              t, goal.goal_id, float(np.sum(np.hypot(*np.diff(retreat.q[:, :2], axis=0).T))),
+                              retreat.q.shape[0])
+                    return PlannedTrajectory(goal.goal_id, retreat.shifted(t), True, "", revision,
+                                             result.timings["total"], motion="plan", retreat=True)
             return PlannedTrajectory(goal.goal_id, None, False, result.reason or FailureReason.TIMEOUT, revision,
                                      result.timings["total"], motion="plan")
         lowest = arm_floor_clearance(self.planner.checker, result.trajectory.q)
