@@ -179,10 +179,24 @@ def test_nav_and_manip_navigates_then_grasps_from_the_reached_base(cls) -> None:
 
 def test_nav_and_manip_grasp_failure_ends_the_episode_with_its_category() -> None:
     bt, s, _ = _scripted(NavAndManipBehaviour, grasp=[False], grasp_category=FailureCategory.REACHABILITY)
+    patience = StrategyConfig().grasp_patience
+    cmd = bt.step(_inputs())
+    q_base = cmd.q_goal
+    cmd = bt.step(_inputs(1.0, q_base), MotionEvent.REACHED)
+    # Grasps are resampled from the reached base for `grasp_patience` seconds...
+    assert cmd.phase == Phase.IDLE and s.grasp.calls == 1
+    cmd = bt.step(_inputs(1.0 + 0.5 * patience, q_base))
+    assert cmd.phase == Phase.IDLE and s.grasp.calls == 2
+    # ...then the failure ends the episode with the sampler's category.
+    cmd = bt.step(_inputs(1.1 + patience, q_base))
+    assert cmd.phase == Phase.FAILED and cmd.failure == FailureCategory.REACHABILITY
+    assert s.navigate.calls == 1 and s.grasp.calls == 3
+    # A grasp found on a later tick is executed.
+    bt, s, _ = _scripted(NavAndManipBehaviour, grasp=[False, True])
     cmd = bt.step(_inputs())
     cmd = bt.step(_inputs(1.0, cmd.q_goal), MotionEvent.REACHED)
-    assert cmd.phase == Phase.FAILED and cmd.failure == FailureCategory.REACHABILITY
-    assert s.navigate.calls == 1 and s.grasp.calls == 1
+    cmd = bt.step(_inputs(1.1, cmd.q_goal))
+    assert cmd.phase == Phase.GRASP_MOVE and s.grasp.calls == 2
     # Navigation goals are budgeted: repeated failed drives end as PLANNING.
     bt, s, _ = _scripted(NavAndManipBehaviour, max_pregrasp_goals=3)
     cmd = bt.step(_inputs())
@@ -290,6 +304,8 @@ def test_real_nav_and_manip_failures(pipeline, scene) -> None:
     bt = make_strategy("nav_and_manip", pipeline)
     cmd = bt.step(PolicyInputs(0.0, layout.stow_configuration(-1.5, 0.5, 0.0), points, target))
     cmd = bt.step(PolicyInputs(1.0, layout.stow_configuration(-1.5, 0.5, 0.0), points, target), MotionEvent.REACHED)
+    cmd = bt.step(PolicyInputs(1.1 + StrategyConfig().grasp_patience, layout.stow_configuration(-1.5, 0.5, 0.0),
+                               points, target))
     assert cmd.phase == Phase.FAILED and cmd.failure == FailureCategory.REACHABILITY, bt.stage_failures
     # A can in the middle of a 2 m x 2 m table: no base pose at the fixed distance.
     table = clouds.box_surface_cloud([0.5, -1.0, 0.0], [2.5, 1.0, 0.6])

@@ -95,6 +95,12 @@ class StrategyConfig:
         capmap_tries: pre-grasp samples tried for a base whose stowed
             configuration is collision-free.
         replan_period: the closed-loop-replanning baseline's periodic replanning [s].
+        grasp_patience: nav_and_manip and capmap_placement keep sampling grasps
+            from the reached base for this long while the head looks at the
+            target, before a failed sample ends the episode: on arrival the
+            map has seen the target from afar only (static s0003: "every
+            IK-valid ranked grasp is in collision with the map" on the first
+            tick at the base) [s].
     """
 
     nav_standoff: list[float] = dc.field(default_factory=lambda: [0.8, 0.7, 0.9])
@@ -103,6 +109,7 @@ class StrategyConfig:
     capmap_keep_torso: bool = True
     capmap_tries: int = 3
     replan_period: float = 1.0
+    grasp_patience: float = 2.0
 
     def __post_init__(self) -> None:
         if not self.nav_standoff or min(self.nav_standoff) <= 0:
@@ -110,6 +117,8 @@ class StrategyConfig:
         for name in ("nav_num_angles", "capmap_tries"):
             if getattr(self, name) < 1:
                 raise ValueError(f"StrategyConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if self.grasp_patience < 0:
+            raise ValueError(f"StrategyConfig.grasp_patience must be >= 0, got {self.grasp_patience}")
         if self.avoid_radius < 0 or self.replan_period <= 0:
             raise ValueError("StrategyConfig: avoid_radius must be >= 0 and replan_period > 0, got "
                              f"{self.avoid_radius}, {self.replan_period}")
@@ -154,9 +163,11 @@ class StrategyBehaviour(SubgoalBehaviour):
     #: What the navigate sampler proposes (for logs).
     NAVIGATION_GOAL = "whole-body pre-grasp"
 
-    def __init__(self, samplers: StrategySamplers, config: BehaviourConfig | None = None) -> None:
+    def __init__(self, samplers: StrategySamplers, config: BehaviourConfig | None = None,
+                 strategy_config: StrategyConfig | None = None) -> None:
         super().__init__(SubgoalSamplers(samplers.grasp, samplers.navigate, samplers.observe), config)
         self.samplers = samplers
+        self.strategy_config = strategy_config or StrategyConfig()
         self._stage_index = 0
         self._refund = False  # the next sample replaces an invalidated goal: no budget used
 
@@ -318,11 +329,25 @@ class NavAndManipBehaviour(StrategyBehaviour):
     NAME = "nav_and_manip"
     STAGES = (Stage.PREGRASP, Stage.GRASP)
     NAVIGATION_GOAL = "base pose (arm stowed)"
+    _grasp_sampling_since: float | None = None
 
     def _on_sample_failed(self, inputs: PolicyInputs, stage: Stage, p: SubgoalProposal) -> None:
         # No grasp from the reached base ends the episode: navigation and
-        # manipulation are decoupled, the base is not repositioned.
+        # manipulation are decoupled, the base is not repositioned. The grasp
+        # is resampled on the next ticks for `grasp_patience` seconds first,
+        # while the head looks at the target from close by.
+        if stage == Stage.GRASP:
+            since = self._grasp_sampling_since
+            if since is None:
+                self._grasp_sampling_since = since = float(inputs.time)
+            if float(inputs.time) - since < self.strategy_config.grasp_patience:
+                return
         self._terminate(inputs, self._sample_failure_category(p), f"{stage.value}: {p.failure_reason}")
+
+    def _on_reached(self, inputs: PolicyInputs) -> bool:
+        if self.phase not in GRASP_PHASES:
+            self._grasp_sampling_since = None  # a new base: a new grasp-sampling window
+        return super()._on_reached(inputs)
 
     def _after_motion_failure(self, inputs: PolicyInputs, stage: Stage) -> bool:
         if stage == Stage.GRASP and self._state.motion_failures[stage] > self.config.max_motion_failures:
@@ -503,7 +528,7 @@ def make_strategy(
         raise ValueError(f"strategy: unknown strategy '{strategy}' (known: {', '.join(BEHAVIOURS)})")
     if strategy == "subgoal_tree":
         return SubgoalBehaviour(pipeline.samplers(), behaviour_config)
-    return BEHAVIOURS[strategy](strategy_samplers(strategy, pipeline, config), behaviour_config)
+    return BEHAVIOURS[strategy](strategy_samplers(strategy, pipeline, config), behaviour_config, config)
 
 
 def apply_strategy_defaults(config: "DiagramConfig", strategy_config: StrategyConfig | None = None) -> "DiagramConfig":
