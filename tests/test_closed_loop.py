@@ -14,7 +14,6 @@ reachability since session 4 (it was reported as perception: the camera cannot
 see a target on a 2.2 m cabinet either).
 """
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,6 +21,7 @@ import pytest
 from scenes import box_room_scenario, table
 from vamg_drake.diagram import DiagramConfig
 from vamg_drake.episode import run_episode
+from vamg_drake.scenarios import DEMO_SCENARIO
 from vamg_drake.world.episode_monitor import COLLISION, PLANNING, REACHABILITY, SUCCESS
 from vamg_drake.world.scenario import Box, Furniture, Part, PlanarPose, load_scenario
 
@@ -49,9 +49,9 @@ def test_full_system_grasps_and_lifts_the_target(tmp_path):
 
 def test_full_system_grasps_and_lifts_in_a_generated_benchmark_room(tmp_path):
     """Static benchmark scene 3 (`vamg bench --suite static`, generated room,
-    oracle-checked; its scenario file is in tests/data): the robot starts 4.3 m
-    away, finds the Rubik's cube on a shelf, grasps and lifts it."""
-    scenario = load_scenario(Path(__file__).parent / "data" / "static_s0003_t00.yaml")
+    oracle-checked; the README demo's default scenario, `DEMO_SCENARIO`): the
+    robot starts 4.3 m away, finds the Rubik's cube on a shelf, grasps and lifts it."""
+    scenario = load_scenario(DEMO_SCENARIO)
     result = run_episode(scenario, DiagramConfig(), out_dir=tmp_path, record=False, progress=False)
     assert result.status == SUCCESS, (result.status, result.kind, result.detail, result.phases)
 
