@@ -33,7 +33,7 @@ from vamg_drake.planning.smoothing import time_parametrize
 from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.robot import layout
 from vamg_drake.robot.spheres import SphereModel
-from vamg_drake.systems.robot_command import RobotCommandIntegrator
+from vamg_drake.systems.robot_command import MAX_JOINT_LEAD, RobotCommandIntegrator
 from vamg_drake.systems.robot_state import RobotStateSelector
 from vamg_drake.systems.tracker_system import WholeBodyTracker
 from vamg_drake.world.world_builder import WorldConfig, build_world, initial_robot_configuration
@@ -479,6 +479,7 @@ def test_tracker_drives_the_simulated_robot_along_a_curved_path():
     builder.Connect(robot_state.GetOutputPort("configuration"), split.get_input_port(0))
     command = builder.AddSystem(RobotCommandIntegrator(V0, world.actuator_joint_order))
     builder.Connect(command.GetOutputPort("desired_state"), plant.get_desired_state_input_port(world.robot))
+    builder.Connect(robot_state.GetOutputPort("configuration"), command.GetInputPort("measured_configuration"))
     tracker = builder.AddSystem(WholeBodyTracker())
     source = builder.AddSystem(ConstantValueSource(AbstractValue.Make(tr)))
     builder.Connect(source.get_output_port(), tracker.GetInputPort("trajectory"))
@@ -501,3 +502,28 @@ def test_tracker_drives_the_simulated_robot_along_a_curved_path():
     assert np.hypot(*(q[:2] - tr.q[-1, :2])) < 0.05
     assert abs(layout.wrap_angle(q[2] - tr.q[-1, 2])) < 0.08
     assert np.hypot(*(q[:2] - q0[:2])) > 1.0  # it really drove
+
+
+def test_the_command_integrator_keeps_the_joint_targets_near_the_measured_joints():
+    """Anti-windup: with the measured configuration connected, the integrated
+    torso/arm targets lead it by at most `MAX_JOINT_LEAD`, however long a rate
+    is commanded; without it they integrate freely (and head and base do anyway)."""
+    V0 = np.r_[layout.stow_configuration(0.0, 0.0, 0.0), np.zeros(2), np.full(2, 0.04)]
+    order = np.arange(V0.shape[0])
+    desired = {}
+    for connected in (False, True):
+        command = RobotCommandIntegrator(V0, order)
+        context = command.CreateDefaultContext()
+        command.GetInputPort("base_velocity").FixValue(context, [0.2, 0.0])
+        command.GetInputPort("joint_velocity").FixValue(context, np.r_[0.05, 0.5, -0.5, np.full(5, 0.5)])
+        command.GetInputPort("head_command").FixValue(context, [0.5, 0.0])
+        command.GetInputPort("gripper_command").FixValue(context, [layout.GRIPPER_MAX_OPENING])
+        if connected:
+            command.GetInputPort("measured_configuration").FixValue(context, V0)  # the robot does not move
+        Simulator(command, context).AdvanceTo(0.6)
+        desired[connected] = command.GetOutputPort("desired_configuration").Eval(context)
+    lead = {k: v[layout.TORSO_ARM] - V0[layout.TORSO_ARM] for k, v in desired.items()}
+    assert np.all(np.abs(lead[False][1:]) > 0.25)  # 0.6 s at 0.5 rad/s
+    np.testing.assert_allclose(np.abs(lead[True]), MAX_JOINT_LEAD, atol=1e-9)
+    for k in (False, True):
+        assert desired[k][0] == pytest.approx(0.12, abs=0.01) and desired[k][layout.NQ] == pytest.approx(0.5)

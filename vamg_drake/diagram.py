@@ -187,6 +187,7 @@ def build_diagram(scenario: Scenario, config: DiagramConfig | None = None, meshc
         RobotCommandIntegrator(initial_robot_configuration(scenario), world.actuator_joint_order, config.command_period),
     )
     builder.Connect(command.GetOutputPort("desired_state"), plant.get_desired_state_input_port(world.robot))
+    builder.Connect(robot_state.GetOutputPort("configuration"), command.GetInputPort("measured_configuration"))
 
     obstacles = builder.AddNamedSystem("obstacles", DynamicObstacleDriver(world.scene.obstacles))
     builder.Connect(robot_state.GetOutputPort("configuration"), obstacles.GetInputPort("robot_configuration"))

@@ -52,6 +52,11 @@ def integrate_command(
     return clipped, Vdot
 
 
+#: Anti-windup: the desired torso/arm positions stay within this of the
+#: measured ones [m or rad] (see `RobotCommandIntegrator`).
+MAX_JOINT_LEAD = np.r_[0.02, np.full(7, 0.1)]
+
+
 class RobotCommandIntegrator(LeafSystem):
     """Integrates velocity commands into the robot's PD desired state.
 
@@ -60,6 +65,13 @@ class RobotCommandIntegrator(LeafSystem):
         joint_velocity: torso and 7 arm joint rates.
         head_command: (pan, tilt) position targets.
         gripper_command: finger opening target [m] (0 closed, 0.1 open).
+        measured_configuration (optional): the robot's extended configuration
+            (15,). When connected, the desired torso and arm positions are kept
+            within `MAX_JOINT_LEAD` of it (anti-windup): a joint whose actuator
+            saturates (the shoulder pan, 33.8 N m, with the arm unfolded) fell
+            0.55 rad behind the integrated target, and the tracker's feedback
+            on the measured state then drove it through a limit cycle at the
+            rate limits (static s0001: a pre-grasp motion stalled at a stop).
     Output ports:
         desired_state: [q_d, v_d] for the robot's actuators, in actuator order.
         desired_configuration: the extended desired configuration (15,).
@@ -73,6 +85,7 @@ class RobotCommandIntegrator(LeafSystem):
         self.DeclareVectorInputPort("joint_velocity", JOINT_VELOCITY_SIZE)
         self.DeclareVectorInputPort("head_command", HEAD_COMMAND_SIZE)
         self.DeclareVectorInputPort("gripper_command", GRIPPER_COMMAND_SIZE)
+        self._measured_port = self.DeclareVectorInputPort("measured_configuration", NX)
         V0 = np.asarray(initial_configuration, dtype=float)
         self._state = self.DeclareDiscreteState(np.r_[V0, np.zeros(NX)])
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
@@ -89,6 +102,11 @@ class RobotCommandIntegrator(LeafSystem):
             float(self.get_input_port(3).Eval(context)[0]),
             self._period,
         )
+        if self._measured_port.HasValue(context):
+            measured = np.asarray(self._measured_port.Eval(context), dtype=float)[layout.TORSO_ARM]
+            if np.all(np.isfinite(measured)):
+                joints = V_next[layout.TORSO_ARM]
+                V_next[layout.TORSO_ARM] = np.clip(joints, measured - MAX_JOINT_LEAD, measured + MAX_JOINT_LEAD)
         discrete_state.get_mutable_vector(self._state).SetFromVector(np.r_[V_next, Vdot])
 
     def _calc_desired_state(self, context, output: BasicVector) -> None:
