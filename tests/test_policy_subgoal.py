@@ -236,28 +236,3 @@ def test_pregrasp_goals_clear_the_target_as_the_planner_checks_them(pipeline, sc
             reached += 1
             assert exempt(q_in)[0] and not strict(q_in)[0]
     assert reached >= 1
-
-
-def test_pregrasps_from_grasp_candidates_stand_off_along_the_approach(pipeline, scene) -> None:
-    """With a dense view of the target, the pre-grasp subgoal puts the gripper
-    `pregrasp_standoff` (10 cm) back along the approach of a grasp candidate:
-    5 cm back, the fingertips' spheres touch small objects."""
-    points, target = scene
-    dense = points[np.linalg.norm(points - target, axis=1) < 0.3]
-    q0 = layout.stow_configuration(-1.5, 0.5, 0.0)
-    kin = FetchKinematics.instance()
-    standoff = pipeline.config.pregrasp_standoff
-    assert standoff == pytest.approx(0.10)
-    checked = 0
-    for seed in range(3):
-        pipeline.rng = np.random.default_rng(seed)
-        p = pipeline.sample_pregrasp(PolicyInputs(0.0, q0, points, target, dense))
-        if not p.success:
-            continue
-        candidates = pipeline._candidates[1]
-        X = kin.gripper_pose(p.q_goal)
-        aligned = candidates.X_WG[:, :3, 0] @ X[:3, 0] > 0.99
-        back = candidates.X_WG[:, :3, 3] - standoff * candidates.X_WG[:, :3, 0]
-        assert np.min(np.linalg.norm(back[aligned] - X[:3, 3], axis=1)) <= 2 * pipeline.ik.config.position_tolerance
-        checked += 1
-    assert checked >= 2

@@ -64,13 +64,6 @@ class SubgoalPipelineConfig:
     #: With a dense target cloud, the pre-grasp sampler's end-effector poses are
     #: the grasp candidates' pre-grasp poses (else the sphere around the target).
     pregrasp_from_grasps: bool = True
-    #: ... those poses lie this far back along each grasp's approach [m]: the
-    #: appendix's 10 cm sphere around the target. The grasp's own pre-grasp
-    #: (`GraspRankingConfig.pregrasp_offset`, 5 cm) is planned with the
-    #: gripper exempt from the target's points; this subgoal is not, and 5 cm
-    #: back the fingertips' covering spheres touch small objects' points
-    #: (static s0004, a stacking cup: 0 of ~900 IK-valid pre-grasps free).
-    pregrasp_standoff: float = 0.10
     #: The grasp stage tries the grasp its last pre-grasp was accepted for first
     #: when the base is within this distance of that pre-grasp's [m].
     aimed_grasp_tolerance: float = 0.15
@@ -291,7 +284,7 @@ class SubgoalPipeline:
             candidates = self._grasp_candidates(inputs, p_WM, p_WT)
             if len(candidates):
                 if inputs.p_WS is not None and len(inputs.p_WS):
-                    ee_poses = pregrasp_poses(candidates.X_WG, self.config.pregrasp_standoff)
+                    ee_poses = pregrasp_poses(candidates.X_WG, self.config.ranking.pregrasp_offset)
 
                 def accept(q_pre: np.ndarray) -> bool:
                     goal = self._grasp_goal(candidates, q_pre, p_WM, p_WT, is_free=is_free)
