@@ -108,7 +108,8 @@ class SubgoalPipeline:
         self.rng = np.random.default_rng(seed)
         self._candidates: tuple | None = None  # (inputs, GraspCandidates) of the last proposal
         self._aimed_grasp: tuple | None = None  # (q_pregrasp, X_WG) the last pre-grasp was accepted for
-        self._cache: dict[bool, tuple] = {}  # exempt_target -> (key, is_free)
+        self._cache_key: tuple | None = None
+        self._cache: tuple | None = None
 
     def samplers(self) -> SubgoalSamplers:
         return SubgoalSamplers(self._timed("subgoal_grasp", self.sample_grasp),
@@ -149,33 +150,27 @@ class SubgoalPipeline:
                     f"sides within {cfg.enclosure_range} m (inside furniture?)")
         return ""
 
-    def collision_fn(self, p_WM: np.ndarray, p_WT: np.ndarray, q: np.ndarray, exempt_target: bool = True):
+    def collision_fn(self, p_WM: np.ndarray, p_WT: np.ndarray, q: np.ndarray):
         """Batched ``is_free`` for configurations near the target under map points p_WM.
 
         One distance field holds the map points near the target and the robot;
-        with `exempt_target`, those within ``target_clearance`` of the target
-        may touch the gripper's spheres only (`CollisionEnvironment.grasp_target`),
-        as the planner allows while moving to a grasp. Without, they are
-        obstacles to the whole robot, as the planner has them for pre-grasp and
-        observe goals (dynamic s0002: 30 pre-grasps whose gripper touched the
-        apple's points, each put in collision by the planner at once).
+        those within ``target_clearance`` of the target may touch the gripper's
+        spheres only (`CollisionEnvironment.grasp_target`).
         """
         cfg = self.config
         key = (p_WM.shape[0], float(p_WM.sum()) if p_WM.size else 0.0, tuple(np.round(p_WT, 4)),
                tuple(np.round(np.asarray(q)[:2], 1)))
-        cached = self._cache.get(exempt_target)
-        if cached is not None and cached[0] == key:
-            return cached[1]
+        if self._cache_key == key:
+            return self._cache
         centers = np.stack([p_WT[:2], np.asarray(q, float)[:2]])
         dxy = np.min(np.linalg.norm(p_WM[:, None, :2] - centers[None], axis=2), axis=1) if p_WM.size else np.zeros(0)
         local = p_WM[(dxy <= cfg.collision_crop) & (p_WM[:, 2] <= cfg.collision_max_height)] if p_WM.size else p_WM
         if local.shape[0] == 0:
             local = np.array([[1e3, 1e3, 1e3]])  # nothing observed: one far point
-        env = CollisionEnvironment.from_points(local, cfg.collision_resolution,
-                                               grasp_target=p_WT if exempt_target else None,
+        env = CollisionEnvironment.from_points(local, cfg.collision_resolution, grasp_target=p_WT,
                                                grasp_target_radius=cfg.target_clearance)
         is_free = CollisionChecker.for_fetch(env, CollisionCheckerConfig()).is_free
-        self._cache[exempt_target] = (key, is_free)
+        self._cache_key, self._cache = key, is_free
         return is_free
 
     @staticmethod
@@ -272,11 +267,7 @@ class SubgoalPipeline:
         costmap = BaseCostmap.from_points(p_WM, self.config.pregrasp.costmap,
                                           include_xy=np.stack([p_WT[:2], q[:2]]), robot_xy=q[:2])
         ee_poses, accept = None, None
-        # The pre-grasp itself must clear the target as well (the planner
-        # plans to it without the gripper's exemption); the grasp it is
-        # accepted for is checked as the grasp motion will be, with it.
         is_free = self.collision_fn(p_WM, p_WT, q)  # its crop covers the target's surroundings
-        is_free_pregrasp = self.collision_fn(p_WM, p_WT, q, exempt_target=False)
         if self.config.pregrasp_from_grasps:
             # With grasp candidates, aim p_ee at their pre-grasp poses (once the
             # target is seen densely) and accept a pre-grasp only if the grasp
@@ -292,7 +283,7 @@ class SubgoalPipeline:
                         self._aimed_grasp = (q_pre, goal.X_WG, float(candidates.width[goal.candidate_index]))
                     return goal.success
 
-        result = self.pregrasp.sample(p_WM, p_WT, q, is_free_pregrasp, self.rng, costmap=costmap,
+        result = self.pregrasp.sample(p_WM, p_WT, q, is_free, self.rng, costmap=costmap,
                                       ee_poses=ee_poses, accept=accept)
         if not result.success:
             category = FailureCategory.REACHABILITY if result.funnel["ik"] == 0 else FailureCategory.SUBGOAL
@@ -306,7 +297,7 @@ class SubgoalPipeline:
         problem = self.target_problem(p_WM, p_WT)
         if problem:
             return SubgoalProposal.failure(problem, FailureCategory.PERCEPTION)
-        result = self.observe.sample(p_WM, p_WT, q, self.collision_fn(p_WM, p_WT, q, exempt_target=False), self.rng)
+        result = self.observe.sample(p_WM, p_WT, q, self.collision_fn(p_WM, p_WT, q), self.rng)
         if not result.success:
             return SubgoalProposal.failure(result.failure_reason, FailureCategory.SUBGOAL)
         return SubgoalProposal(True, result.q, head=result.head)
