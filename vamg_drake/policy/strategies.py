@@ -329,7 +329,11 @@ class NavAndManipBehaviour(StrategyBehaviour):
     NAME = "nav_and_manip"
     STAGES = (Stage.PREGRASP, Stage.GRASP)
     NAVIGATION_GOAL = "base pose (arm stowed)"
-    _grasp_sampling_since: float | None = None
+
+    def __init__(self, samplers: StrategySamplers, config: BehaviourConfig | None = None,
+                 strategy_config: StrategyConfig | None = None) -> None:
+        super().__init__(samplers, config, strategy_config)
+        self._grasp_sampling_since: float | None = None  # when grasp sampling from this base began
 
     def _on_sample_failed(self, inputs: PolicyInputs, stage: Stage, p: SubgoalProposal) -> None:
         # No grasp from the reached base ends the episode: navigation and

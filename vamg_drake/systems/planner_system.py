@@ -9,6 +9,7 @@ INVALIDATED to the policy. The pure decision logic lives in `MotionSupervisor`
 (plain Python, testable without Drake).
 """
 
+import collections
 import dataclasses as dc
 import functools
 import logging
@@ -197,7 +198,7 @@ class MotionSupervisor:
         self.config = config
         self.timings = timings
         self.last_replan_time = -np.inf
-        self._history: list[tuple[float, np.ndarray]] = []  # (t, q) of the robot, for retreats
+        self._history: collections.deque[tuple[float, np.ndarray]] = collections.deque()  # (t, q), for retreats
         self._retreats: dict[int, int] = {}  # retreats per goal id
 
     def tick(self, plan: PlannedTrajectory, goal: SubgoalCommand | None, q: np.ndarray, t: float,
@@ -266,7 +267,7 @@ class MotionSupervisor:
         if not self._history or np.max(np.abs(layout.wrap_configuration(q - self._history[-1][1]))) > 1e-3:
             self._history.append((t, np.array(q, dtype=float)))
         while self._history and self._history[0][0] < t - horizon:
-            self._history.pop(0)
+            self._history.popleft()
 
     def _retreat(self, goal: SubgoalCommand, q: np.ndarray) -> TimedTrajectory | None:
         """The robot's recent path backwards from q to the latest configuration
