@@ -145,26 +145,24 @@ def test_budgets_prevent_endless_cycling() -> None:
     assert bt.goals_issued == {"grasp": 0, "pre_grasp": 2, "observe": 1}
 
 
-def test_perception_category_when_no_grasp_candidates() -> None:
+@pytest.mark.parametrize(
+    "pregrasp_category, expected",
+    [
+        # No grasp candidates and a pre-grasp sample that found nothing: perception.
+        (FailureCategory.SUBGOAL, FailureCategory.PERCEPTION),
+        # No pre-grasp sample reaches the target (capability and IK both 0) and the
+        # camera saw none of it: reachability, the cause no view would remove.
+        (FailureCategory.REACHABILITY, FailureCategory.REACHABILITY),
+    ],
+)
+def test_failure_category_when_no_grasp_and_no_pregrasp(pregrasp_category, expected) -> None:
     samplers = SubgoalSamplers(
         ScriptedSampler("grasp", [False], FailureCategory.PERCEPTION),
-        ScriptedSampler("pregrasp", [False], FailureCategory.SUBGOAL),
+        ScriptedSampler("pregrasp", [False], pregrasp_category),
         ScriptedSampler("observe", [False]),
     )
     cmd = SubgoalBehaviour(samplers).step(_inputs())
-    assert cmd.failure == FailureCategory.PERCEPTION
-
-
-def test_an_unreachable_target_is_reachability_even_when_unseen() -> None:
-    """No pre-grasp sample reaches the target (capability and IK both 0) and
-    the camera saw none of it: reachability, the cause no view would remove."""
-    samplers = SubgoalSamplers(
-        ScriptedSampler("grasp", [False], FailureCategory.PERCEPTION),
-        ScriptedSampler("pregrasp", [False], FailureCategory.REACHABILITY),
-        ScriptedSampler("observe", [False]),
-    )
-    cmd = SubgoalBehaviour(samplers).step(_inputs())
-    assert cmd.failure == FailureCategory.REACHABILITY
+    assert cmd.failure == expected
 
 
 def test_sampler_exception_is_a_recorded_failure() -> None:
