@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses as dc
+
 import numpy as np
 import pytest
 
@@ -206,3 +208,19 @@ def test_pregrasp_accept_prefers_but_does_not_require(pipeline, scene) -> None:
                                     accept=lambda q: seen.append(q) or False)
     assert none.success and none.funnel["accepted"] == 0 and len(seen) > 1
     np.testing.assert_array_equal(none.q, seen[0])
+
+
+def test_support_surface_does_not_hide_a_small_target_but_a_wall_does(pipeline) -> None:
+    # A 2 cm brick on a 0.94 m counter, seen from 1.2 m away at a low angle
+    # (static s0009): the counter top lies just below the line of sight.
+    counter = clouds.box_surface_cloud([0.6, -0.6, 0.0], [1.2, 0.6, 0.94], spacing=0.03)
+    target = np.array([0.9, 0.0, 0.946])
+    q = layout.stow_configuration(-0.3, 0.0, 0.0)
+    vis = pipeline.visibility
+    assert vis.check(q[None], target, counter)[0][0]
+    strict = type(vis)(dc.replace(vis.config, support_tolerance=np.inf))
+    assert not strict.check(q[None], target, counter)[0][0]  # every point near the line blocks it
+    # A panel standing across the line of sight still hides the target.
+    ys, zs = np.meshgrid(np.arange(-0.3, 0.3, 0.03), np.arange(0.9, 1.3, 0.03), indexing="ij")
+    panel = np.stack([np.full(ys.size, 0.45), ys.ravel(), zs.ravel()], 1)
+    assert not vis.check(q[None], target, np.concatenate([counter, panel]))[0][0]
