@@ -41,7 +41,7 @@ def test_small_ball_on_a_table_is_grasped_nearer_the_fingertips() -> None:
     center = np.array([0.0, 0.0, 0.874 + 0.024])
     cloud = np.concatenate([clouds.sphere_cloud(center, 0.024, seed=4),
                             clouds.table_top_cloud(z=0.874, size=0.5, spacing=0.005)])
-    mid_pad = AntipodalGraspSampler(AntipodalGraspConfig(contact_offsets=[0.0])).propose(cloud, center)
+    mid_pad = AntipodalGraspSampler(AntipodalGraspConfig(contact_offsets=[0.0], top_down_yaws=0)).propose(cloud, center)
     assert len(mid_pad) == 0 and "no finger clearance" in mid_pad.failure_reason
     g = AntipodalGraspSampler().propose(cloud, center)
     assert len(g) > 0, g.failure_reason
@@ -53,6 +53,27 @@ def test_small_ball_on_a_table_is_grasped_nearer_the_fingertips() -> None:
     assert np.all(tips[:, 2] > 0.874)
     with pytest.raises(ValueError, match="contact_offsets"):
         AntipodalGraspConfig(contact_offsets=[])
+
+
+def test_low_brick_gets_top_down_grasps_along_its_axes() -> None:
+    """A 6.4 x 3.2 x 2 cm brick on a table, turned 0.5 rad (static s0009's
+    Lego): the top-down family closes across its short and its long side,
+    fingertips above the table, where the antipodal pairs alone find few."""
+    z_table = 0.94
+    center = np.array([0.0, 0.0, z_table + 0.01])
+    brick = clouds.box_cloud(center=center, size=(0.064, 0.032, 0.02), yaw=0.5, noise=0.001, seed=5)
+    cloud = np.concatenate([brick, clouds.table_top_cloud(z=z_table, size=0.5, spacing=0.005)])
+    g = AntipodalGraspSampler().propose(cloud, center)
+    _assert_valid_frames(g)
+    down = g.X_WG[:, 2, 0] < -0.999
+    assert down.sum() >= 2, g.failure_reason
+    closing = np.abs(np.arctan2(g.X_WG[down, 1, 1], g.X_WG[down, 0, 1]) - 0.5) % np.pi
+    across = np.minimum(closing, np.pi - closing)  # 0: along the long side, pi/2: across it
+    assert np.any(across < 0.05) and np.any(np.abs(across - np.pi / 2) < 0.05)
+    tips = g.X_WG[down, :3, 3] + 0.031 * g.X_WG[down, :3, 0]
+    assert np.all(tips[:, 2] > z_table)
+    pairs_only = AntipodalGraspSampler(AntipodalGraspConfig(top_down_yaws=0)).propose(cloud, center)
+    assert np.count_nonzero(pairs_only.X_WG[:, 2, 0] < -0.999) < down.sum()
 
 
 def _pad_coverage(X_WG: np.ndarray, center: np.ndarray, yaw: float, half: float) -> np.ndarray:

@@ -146,7 +146,8 @@ class AntipodalGraspConfig:
     #: Where the closing pads first touch the object: its points within this
     #: distance of its extremes along the closing axis, on each side [m]. Most of
     #: them must have normals in the friction cone of the closing axis, lie
-    #: ``min_tip_distance`` inside the fingertips, and reach ``min_pad_span`` of
+    #: ``min_tip_distance`` inside the fingertips (a third of the object's depth
+    #: in the pads if that is less), and reach ``min_pad_span`` of
     #: the pad's half width on both sides of the pads' middle. The contact pair
     #: sampled is not where flat pads touch first: a cube closed diagonally is
     #: touched at its edges near the fingertips and spun out, a cup closed in
@@ -160,6 +161,22 @@ class AntipodalGraspConfig:
     min_pad_span: float = 0.5
     #: Most candidates returned (highest scores first).
     max_candidates: int = 400
+    #: Top-down grasps proposed from the target's cluster itself, at this many
+    #: closing-axis yaws from its major axis (0: none): the straight-down approach, the closing
+    #: axis level and through the middle of the cluster's extent along it, the
+    #: pads' middle 3 cm under its top or, for a low object, as low as the
+    #: fingertips clear the support surface by ``top_down_floor_clearance``.
+    #: They pass the same clearance and first-contact tests as the antipodal
+    #: pairs, whose random seeds and PCA normals rarely pair up on a small or
+    #: lumpy object (static s0009: one grasp on a Lego brick; marbles,
+    #: racquetball, plum: none or none reachable).
+    top_down_yaws: int = 16
+    top_down_floor_clearance: float = 0.005
+    #: Grasp quality (in [0, 1], as the antipodal alignment) given to top-down grasps.
+    top_down_quality: float = 0.8
+    #: Cluster points: linked to the target's nearest point by steps of at
+    #: most this many point spacings, within ``grasp_radius``.
+    cluster_link: float = 2.0
 
     def __post_init__(self) -> None:
         if not 0.0 < self.friction_coefficient:
@@ -241,9 +258,29 @@ class AntipodalGraspSampler:
                 f"{cfg.grasp_radius} m (need {cfg.min_points})"
             )
         normals = self._prepare(crop)
+        families = [self._antipodal_family(crop, normals, near, rng), self._top_down_family(crop, normals, near, p_WT)]
+        families = [f for f in families if f is not None]
+        if not families:
+            return GraspCandidates.empty("no antipodal contact pair within the gripper opening near the target")
+        x_axis, y_axis, center, width, quality = (np.concatenate(a) for a in zip(*families))
+        X_WG, ok, offset = self._clear_frames(crop, normals, x_axis, y_axis, center, width)
+        if not np.any(ok):
+            return GraspCandidates.empty("every antipodal grasp collides with the observed cloud (no finger clearance)")
+        X_WG, width, quality, center, offset = X_WG[ok], width[ok], quality[ok], center[ok], offset[ok]
+        proximity = 1.0 - np.clip(np.linalg.norm(center - p_WT, axis=1) / cfg.grasp_radius, 0.0, 1.0)
+        # Contacts nearer the fingertips hold less: 1 cm of offset costs 0.01.
+        score = 0.7 * quality + 0.3 * proximity - offset
+        order = np.argsort(-score, kind="stable")[: cfg.max_candidates]
+        return GraspCandidates(X_WG[order], score[order], width[order])
+
+    def _antipodal_family(self, crop: np.ndarray, normals: np.ndarray, near: np.ndarray,
+                          rng: np.random.Generator) -> tuple | None:
+        """(approach x, closing y, contact centre, width, quality) per grasp, each
+        antipodal pair spun through ``num_approaches``; None without a pair."""
+        cfg = self.config
         pairs = self._antipodal_pairs(crop, normals, np.flatnonzero(near), rng)
         if pairs.shape[0] == 0:
-            return GraspCandidates.empty("no antipodal contact pair within the gripper opening near the target")
+            return None
         i, j = pairs[:, 0], pairs[:, 1]
         p1, p2 = crop[i], crop[j]
         width = np.linalg.norm(p2 - p1, axis=1)
@@ -267,16 +304,77 @@ class AntipodalGraspSampler:
         ca, sa = np.cos(angles), np.sin(angles)
         x_axis = (ca[None, :, None] * u[:, None, :] + sa[None, :, None] * v[:, None, :]).reshape(-1, 3)
         rep = lambda a: np.repeat(a, cfg.num_approaches, axis=0)  # noqa: E731
-        y_rep, c_rep, w_rep, q_rep = rep(y_axis), rep(center), rep(width), rep(quality)
-        X_WG, ok, offset = self._clear_frames(crop, normals, x_axis, y_rep, c_rep, w_rep)
-        if not np.any(ok):
-            return GraspCandidates.empty("every antipodal grasp collides with the observed cloud (no finger clearance)")
-        X_WG, w_rep, q_rep, c_rep, offset = X_WG[ok], w_rep[ok], q_rep[ok], c_rep[ok], offset[ok]
-        proximity = 1.0 - np.clip(np.linalg.norm(c_rep - p_WT, axis=1) / cfg.grasp_radius, 0.0, 1.0)
-        # Contacts nearer the fingertips hold less: 1 cm of offset costs 0.01.
-        score = 0.7 * q_rep + 0.3 * proximity - offset
-        order = np.argsort(-score, kind="stable")[: cfg.max_candidates]
-        return GraspCandidates(X_WG[order], score[order], w_rep[order])
+        return x_axis, rep(y_axis), rep(center), rep(width), rep(quality)
+
+    def _top_down_family(self, crop: np.ndarray, normals: np.ndarray, near: np.ndarray,
+                         p_WT: np.ndarray) -> tuple | None:
+        """Top-down grasps of the target's cluster (``top_down_yaws``), in the
+        form of `_antipodal_family`; None when there are none."""
+        cfg = self.config
+        if cfg.top_down_yaws < 1:
+            return None
+        cluster = self._target_cluster(crop, normals, near, p_WT)
+        if cluster is None:
+            return None
+        points, z_support = cluster
+        # Yaws from the cluster's major horizontal axis: with top_down_yaws
+        # divisible by 4 the set closes along both principal axes, where a
+        # box's faces (not its corners) meet the pads first.
+        xy = points[:, :2] - points[:, :2].mean(axis=0)
+        eigval, eigvec = np.linalg.eigh(xy.T @ xy)
+        yaw0 = float(np.arctan2(eigvec[1, 1], eigvec[0, 1]))
+        yaw = yaw0 + np.arange(cfg.top_down_yaws) * (2 * np.pi / cfg.top_down_yaws)
+        y_axis = np.stack([np.cos(yaw), np.sin(yaw), np.zeros_like(yaw)], axis=1)
+        z_axis = np.stack([-np.sin(yaw), np.cos(yaw), np.zeros_like(yaw)], axis=1)  # x cross y, x = -z_W
+        along_y, along_z = points[:, :2] @ y_axis[:, :2].T, points[:, :2] @ z_axis[:, :2].T  # (N, Y)
+        width = along_y.max(axis=0) - along_y.min(axis=0)
+        mid_y = 0.5 * (along_y.max(axis=0) + along_y.min(axis=0))
+        mid_z = 0.5 * (along_z.max(axis=0) + along_z.min(axis=0))
+        g = cfg.gripper
+        top = points[:, 2].max()
+        half_pads = 0.5 * g.finger_length
+        height = max(top - half_pads, z_support + g.fingertip_x + cfg.top_down_floor_clearance)
+        center = mid_y[:, None] * y_axis + mid_z[:, None] * z_axis
+        center[:, 2] = height
+        keep = (width >= cfg.min_width) & (width <= g.max_opening - 2.0 * self._margin)
+        if not np.any(keep):
+            return None
+        x_axis = np.tile([0.0, 0.0, -1.0], (int(keep.sum()), 1))
+        return x_axis, y_axis[keep], center[keep], width[keep], np.full(int(keep.sum()), cfg.top_down_quality)
+
+    def _target_cluster(self, crop: np.ndarray, normals: np.ndarray, near: np.ndarray,
+                        p_WT: np.ndarray) -> tuple[np.ndarray, float] | None:
+        """The target's points (those within ``grasp_radius`` linked to its
+        nearest point, above its support surface) and the support's height
+        (-inf when none is seen); None when too few."""
+        cfg = self.config
+        local = crop[near]
+        if local.shape[0] < cfg.min_points:
+            return None
+        # The support: the most populated 1 cm layer of level points at or below the target.
+        level = (np.abs(normals[near][:, 2]) > 0.8) & (local[:, 2] <= p_WT[2])
+        z_support = -np.inf
+        if np.count_nonzero(level) >= cfg.min_points:
+            bins = np.floor(local[level, 2] / 0.01).astype(np.int64)
+            values, counts = np.unique(bins, return_counts=True)
+            layer = values[np.argmax(counts)]
+            z_support = float(np.max(local[level][np.abs(bins - layer) <= 1, 2]))
+        above = local[local[:, 2] > z_support + max(self._spacing, cfg.voxel_size)]
+        if above.shape[0] < cfg.min_support:
+            return None
+        tree = cKDTree(above)
+        start = int(tree.query(p_WT)[1])
+        member = np.zeros(above.shape[0], dtype=bool)
+        member[start] = True
+        frontier = [start]
+        link = cfg.cluster_link * max(self._spacing, cfg.voxel_size)
+        while frontier:
+            linked = np.unique(np.concatenate([np.asarray(n, dtype=int) for n in tree.query_ball_point(above[frontier], link)]))
+            linked = linked[~member[linked]]
+            member[linked] = True
+            frontier = linked.tolist()
+        points = above[member]
+        return (points, z_support) if points.shape[0] >= cfg.min_support else None
 
     def verify(self, p_WS: np.ndarray, p_WT: np.ndarray, X_WG: np.ndarray, width: np.ndarray) -> np.ndarray:
         """Whether grasps X_WG (K, 4, 4) of object widths `width` (K,), proposed
@@ -451,6 +549,7 @@ def _clearance_kernel(
         support = 0
         y_pos = 0.0
         y_neg = 0.0
+        x_min = 0.0
         free = True
         for n in range(points.shape[0]):
             r2, x, y_signed, z_signed = _tip_coordinates(points, n, X_WG, k, fingertip_x)
@@ -462,6 +561,7 @@ def _clearance_kernel(
                 if z <= 0.5 * finger_width:
                     if y < inner:
                         support += 1
+                        x_min = min(x_min, x)
                         y_pos = max(y_pos, y_signed)
                         y_neg = min(y_neg, y_signed)
                     elif y <= half_open + finger_thickness:
@@ -472,7 +572,11 @@ def _clearance_kernel(
                 break
         if not free or support < min_support or y_pos <= 0.0 or y_neg >= 0.0:
             continue
-        # The first contacts of the closing pads, one side at a time.
+        # The first contacts of the closing pads, one side at a time. An object
+        # reaching less than 3 min_tip_distance into the pads (a 2 cm brick
+        # grasped from above, its support just under the fingertips) is held
+        # at the tips: a third of its depth is "deep" enough.
+        tip_depth = min(min_tip_distance, -x_min / 3.0)
         good = True
         for side in range(2):
             extreme = y_pos if side == 0 else -y_neg
@@ -493,7 +597,7 @@ def _clearance_kernel(
                           + X_WG[k, 2, 1] * normals[n, 2])
                 if n_y >= cos_cone:
                     in_cone += 1
-                if x <= -min_tip_distance:
+                if x <= -tip_depth:
                     deep += 1
                 z_low = min(z_low, z_signed)
                 z_high = max(z_high, z_signed)

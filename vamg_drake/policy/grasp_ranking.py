@@ -174,9 +174,16 @@ def select_grasp_goal(
     is_free: IsFreeFn,
     reachable: ReachableFn | None,
     config: GraspRankingConfig | None = None,
+    grasp_is_free: IsFreeFn | None = None,
 ) -> GraspGoal:
-    """The paper's grasp goal sampling: the first IK- and collision-valid ranked grasp."""
+    """The paper's grasp goal sampling: the first IK- and collision-valid ranked grasp.
+
+    `is_free` checks the pre-grasps; `grasp_is_free` (default `is_free`) the
+    grasps and the approaches to them (`check_grasp_collision`), which a
+    grasp source may have checked for the gripper itself at finer resolution.
+    """
     config = config or GraspRankingConfig()
+    grasp_is_free = grasp_is_free or is_free
     nan_q = np.full(q_current.shape, np.nan)
     fail = lambda reason, n_reach=0, n_tried=0: GraspGoal(  # noqa: E731
         False, nan_q, nan_q, np.full((4, 4), np.nan), -1, len(candidates), n_reach, n_tried, reason
@@ -201,13 +208,13 @@ def select_grasp_goal(
     free = np.zeros(order.size, dtype=bool)
     free[valid] = np.asarray(is_free(q_pre[valid]), dtype=bool)
     if config.check_grasp_collision:
-        free[valid] &= np.asarray(is_free(q_grasp[valid]), dtype=bool)
+        free[valid] &= np.asarray(grasp_is_free(q_grasp[valid]), dtype=bool)
         for s in np.arange(1, config.approach_checks + 1) / (config.approach_checks + 1):
             check = valid & free
             if not check.any():
                 break
             q_mid = q_pre[check] + s * layout.wrap_configuration(q_grasp[check] - q_pre[check])
-            free[check] &= np.asarray(is_free(q_mid), dtype=bool)
+            free[check] &= np.asarray(grasp_is_free(q_mid), dtype=bool)
     winners = np.flatnonzero(valid & free)
     if winners.size == 0:
         return fail("every IK-valid ranked grasp is in collision with the map", n_reachable, order.size)

@@ -11,6 +11,12 @@ the target and the robot, minus a small ball around the target, which only
 the robot body (every sphere but the gripper's) must keep clear of: the
 fingers are meant to reach the object, and the grasp sampler has already
 checked the fingers and palm against the cloud itself at finer resolution.
+The gripper keeps clear of the target's support surface in that ball too
+(`CollisionEnvironment.grasp_target_floor`), except at the grasp and on the
+approach to it (`collision_fn(..., grasp=True)`): there the grasp source's
+own finer check of the gripper decides, since the collision model's finger
+spheres reach 1 cm past the fingertips and left no grasp of a 2 cm Lego brick
+on a counter (static s0009).
 
 Target checks (bad input): a non-finite target, or one enclosed by map points
 on (nearly) all sides -- inside furniture -- fails every stage at once with a
@@ -150,18 +156,19 @@ class SubgoalPipeline:
                     f"sides within {cfg.enclosure_range} m (inside furniture?)")
         return ""
 
-    def collision_fn(self, p_WM: np.ndarray, p_WT: np.ndarray, q: np.ndarray):
+    def collision_fn(self, p_WM: np.ndarray, p_WT: np.ndarray, q: np.ndarray, grasp: bool = False):
         """Batched ``is_free`` for configurations near the target under map points p_WM.
 
         One distance field holds the map points near the target and the robot;
         those within ``target_clearance`` of the target may touch the gripper's
-        spheres only (`CollisionEnvironment.grasp_target`).
+        spheres only (`CollisionEnvironment.grasp_target`), and with `grasp`
+        those of its support surface too.
         """
         cfg = self.config
         key = (p_WM.shape[0], float(p_WM.sum()) if p_WM.size else 0.0, tuple(np.round(p_WT, 4)),
                tuple(np.round(np.asarray(q)[:2], 1)))
         if self._cache_key == key:
-            return self._cache
+            return self._cache[int(grasp)]
         centers = np.stack([p_WT[:2], np.asarray(q, float)[:2]])
         dxy = np.min(np.linalg.norm(p_WM[:, None, :2] - centers[None], axis=2), axis=1) if p_WM.size else np.zeros(0)
         local = p_WM[(dxy <= cfg.collision_crop) & (p_WM[:, 2] <= cfg.collision_max_height)] if p_WM.size else p_WM
@@ -170,8 +177,10 @@ class SubgoalPipeline:
         env = CollisionEnvironment.from_points(local, cfg.collision_resolution, grasp_target=p_WT,
                                                grasp_target_radius=cfg.target_clearance)
         is_free = CollisionChecker.for_fetch(env, CollisionCheckerConfig()).is_free
-        self._cache_key, self._cache = key, is_free
-        return is_free
+        grasp_free = CollisionChecker.for_fetch(dc.replace(env, grasp_target_floor=-np.inf),
+                                                CollisionCheckerConfig()).is_free
+        self._cache_key, self._cache = key, (is_free, grasp_free)
+        return self._cache[int(grasp)]
 
     @staticmethod
     def _points(inputs: PolicyInputs) -> np.ndarray:
@@ -220,14 +229,15 @@ class SubgoalPipeline:
         return bool(verify(self._grasp_cloud(inputs, p_WM, p_WT), p_WT, X_WG[None], np.array([width]))[0])
 
     def _grasp_goal(self, candidates: GraspCandidates, q: np.ndarray, p_WM: np.ndarray, p_WT: np.ndarray,
-                    capability: bool = True, is_free=None):
+                    capability: bool = True, is_free=None, grasp_is_free=None):
         """The paper's grasp goal sampling from configuration q (base and torso
-        fixed); `is_free` defaults to `collision_fn` around q."""
+        fixed); `is_free` and `grasp_is_free` default to `collision_fn` around q."""
         X_WB = base_poses(q)[0]
         p_WE = FetchKinematics.instance().gripper_pose(q)[:3, 3]
         return select_grasp_goal(
             candidates, q, X_WB, p_WE, self.ik.solve_arm, is_free or self.collision_fn(p_WM, p_WT, q),
             self.maps.capability.is_reachable if capability else None, self.config.ranking,
+            grasp_is_free or self.collision_fn(p_WM, p_WT, q, grasp=True),
         )
 
     def _grasp_candidates(self, inputs: PolicyInputs, p_WM: np.ndarray, p_WT: np.ndarray):
@@ -268,6 +278,7 @@ class SubgoalPipeline:
                                           include_xy=np.stack([p_WT[:2], q[:2]]), robot_xy=q[:2])
         ee_poses, accept = None, None
         is_free = self.collision_fn(p_WM, p_WT, q)  # its crop covers the target's surroundings
+        grasp_is_free = self.collision_fn(p_WM, p_WT, q, grasp=True)
         if self.config.pregrasp_from_grasps:
             # With grasp candidates, aim p_ee at their pre-grasp poses (once the
             # target is seen densely) and accept a pre-grasp only if the grasp
@@ -278,7 +289,8 @@ class SubgoalPipeline:
                     ee_poses = pregrasp_poses(candidates.X_WG, self.config.ranking.pregrasp_offset)
 
                 def accept(q_pre: np.ndarray) -> bool:
-                    goal = self._grasp_goal(candidates, q_pre, p_WM, p_WT, is_free=is_free)
+                    goal = self._grasp_goal(candidates, q_pre, p_WM, p_WT, is_free=is_free,
+                                            grasp_is_free=grasp_is_free)
                     if goal.success:
                         self._aimed_grasp = (q_pre, goal.X_WG, float(candidates.width[goal.candidate_index]))
                     return goal.success
