@@ -1,14 +1,17 @@
 """The WholeBodyPlanner LeafSystem: plans on a new goal, replans when a map invalidates."""
 
 import numpy as np
+import pytest
 from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
 
-from vamg_drake.perception.raycast_map import PointMapSnapshot
-from vamg_drake.planning.whole_body_planner import PlannerConfig
+from vamg_drake.perception.raycast_map import PointMap, PointMapSnapshot
+from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig
 from vamg_drake.policy.behaviour_tree import MotionEvent, Phase, SubgoalCommand
 from vamg_drake.robot import layout
+from vamg_drake.robot.head_camera import CameraIntrinsics, HeadCameraConfig
 from vamg_drake.systems.planner_system import PlannerSystem, PlannerSystemConfig
+from vamg_drake.systems.timing import ModuleTimings
 
 
 def _snapshot(points: np.ndarray, revision: int) -> PointMapSnapshot:
@@ -64,3 +67,89 @@ def test_goal_in_collision_reports_an_invalidated_goal():
     feedback = system.GetOutputPort("motion_feedback").Eval(context)
     assert not plan.success and plan.reason == "goal_in_collision"
     assert feedback.goal_id == 7 and feedback.event == MotionEvent.INVALIDATED
+
+
+def test_new_points_are_checked_alone_and_the_environment_is_rebuilt_only_to_plan():
+    timings = ModuleTimings()
+    system = PlannerSystem(PlannerSystemConfig(planner=PlannerConfig(attempt_budget_s=5.0)), timings=timings)
+    context = system.CreateDefaultContext()
+    point_map = PointMap(CameraIntrinsics.from_config(HeadCameraConfig()))
+    point_map.add_points(np.concatenate([_box_points([1.5, y, 0.6], [2.0, 0.03, 0.6]) for y in (-2.0, 2.0)]))
+    qs, qg = layout.stow_configuration(0.0, 0.0, 0.0), layout.stow_configuration(3.0, 0.0, 0.0)
+    goal = SubgoalCommand(1, qg, "plan", Phase.PREGRASP, layout.GRIPPER_MAX_OPENING, np.full(2, np.nan))
+    system.GetInputPort("goal").FixValue(context, AbstractValue.Make(goal))
+    system.GetInputPort("point_map").FixValue(context, AbstractValue.Make(point_map.snapshot()))
+    system.GetInputPort("robot_configuration").FixValue(context, qs)
+    simulator = Simulator(system, context)
+    simulator.AdvanceTo(0.05)
+    first = system.GetOutputPort("trajectory").Eval(context)
+    assert first.success and abs(first.trajectory.sample(first.trajectory.end_time)[1]) < 1e-9
+    builds = lambda: timings.summary()["planner_environment"]["count"]  # noqa: E731
+    assert builds() == 1
+    period = PlannerSystemConfig().recheck_period
+
+    # A box beside the path: checked alone against the rest of the path, no rebuild.
+    point_map.add_points(_box_points([1.5, 1.0, 0.3], [0.1, 0.1, 0.3]))
+    system.GetInputPort("point_map").FixValue(context, AbstractValue.Make(point_map.snapshot()))
+    simulator.AdvanceTo(0.05 + period)
+    plan = system.GetOutputPort("trajectory").Eval(context)
+    assert plan.trajectory is first.trajectory and plan.map_revision == point_map.snapshot().revision
+    assert builds() == 1 and timings.summary()["planner_new_points"]["count"] == 1
+
+    # A pillar on the path: invalidated by the new points; rebuilt once to replan around it.
+    point_map.add_points(_box_points([1.5, 0.0, 0.6], [0.15, 0.15, 0.6]))
+    system.GetInputPort("point_map").FixValue(context, AbstractValue.Make(point_map.snapshot()))
+    simulator.AdvanceTo(0.05 + 2 * period)
+    plan = system.GetOutputPort("trajectory").Eval(context)
+    feedback = system.GetOutputPort("motion_feedback").Eval(context)
+    assert feedback.goal_id == 1 and feedback.event == MotionEvent.INVALIDATED
+    assert plan.success and builds() == 2
+    assert np.max(np.abs(plan.trajectory.q[:, 1])) > 0.2
+    # The replanned path keeps clear of the box seen before the rebuild too.
+    assert system.planner.path_is_valid(plan.trajectory.q)
+
+
+def _pregrasp_scene():
+    """A goal whose open fingers straddle a small object (its points within the
+    gripper's spheres), the target at the object's centre."""
+    from vamg_drake.robot.kinematics import FetchKinematics
+
+    q_goal = np.array([0.0, 0.0, 0.0, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # arm straight out
+    X_WG = FetchKinematics.instance().gripper_pose(q_goal)
+    p_WT = X_WG[:3, 3] + 0.05 * X_WG[:3, 0]  # the grasp 5 cm ahead of the pre-grasp
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(300, 3))
+    obj = p_WT + 0.025 * d / np.linalg.norm(d, axis=1, keepdims=True)
+    return q_goal, p_WT, obj
+
+
+def test_pregrasp_goal_straddling_the_target_is_approached_straight_from_behind():
+    q_goal, p_WT, obj = _pregrasp_scene()
+    qs = layout.stow_configuration(-1.5, 0.0, 0.0)
+    outcomes = {}
+    for retreat in (0.10, 0.0):
+        system = PlannerSystem(PlannerSystemConfig(approach_retreat=retreat,
+                                                   planner=PlannerConfig(attempt_budget_s=5.0)))
+        context = system.CreateDefaultContext()
+        goal = SubgoalCommand(1, q_goal, "plan", Phase.PREGRASP, layout.GRIPPER_MAX_OPENING, np.full(2, np.nan))
+        system.GetInputPort("goal").FixValue(context, AbstractValue.Make(goal))
+        system.GetInputPort("point_map").FixValue(context, AbstractValue.Make(_snapshot(obj, 0)))
+        system.GetInputPort("robot_configuration").FixValue(context, qs)
+        system.GetInputPort("target").FixValue(context, p_WT)
+        Simulator(system, context).AdvanceTo(0.05)
+        outcomes[retreat] = (system, system.GetOutputPort("trajectory").Eval(context))
+    system, plan = outcomes[0.10]
+    assert plan.success and plan.approach_index > 0, plan.reason
+    np.testing.assert_allclose(plan.trajectory.q[-1], q_goal, atol=1e-6)
+    # Up to the approach, the path keeps the gripper off the target's points too;
+    # the approach itself is the gripper's straight 10 cm advance.
+    assert system.planner.path_is_valid(plan.trajectory.q[: plan.approach_index + 1])
+    assert not system.planner.path_is_valid(plan.trajectory.q[plan.approach_index:])
+    from vamg_drake.robot.kinematics import FetchKinematics
+
+    kin = FetchKinematics.instance()
+    p_entry = kin.gripper_pose(plan.trajectory.q[plan.approach_index])[:3, 3]
+    assert np.linalg.norm(p_entry - kin.gripper_pose(q_goal)[:3, 3]) == pytest.approx(0.10, abs=0.01)
+    # Without the approach the goal is in collision for the planner.
+    _, strict = outcomes[0.0]
+    assert not strict.success and strict.reason == FailureReason.GOAL_IN_COLLISION

@@ -205,14 +205,21 @@ class CollisionEnvironment:
                     grasp_target_radius: float = 0.0) -> "CollisionEnvironment":
         """The map's points as a distance field; points within
         `grasp_target_radius` of `grasp_target` may touch the gripper only."""
+        env = CollisionEnvironment(field=DistanceField.from_points(points, resolution))
         if grasp_target is None or not grasp_target_radius > 0.0:
-            return CollisionEnvironment(field=DistanceField.from_points(points, resolution))
+            return env
+        return env.with_grasp_target(grasp_target, grasp_target_radius)
+
+    def with_grasp_target(self, grasp_target: np.ndarray, radius: float) -> "CollisionEnvironment":
+        """The same obstacles, the field's points within `radius` of
+        `grasp_target` (above their support, `support_height`) allowed to the
+        gripper; the field is shared, not rebuilt."""
         grasp_target = np.asarray(grasp_target, dtype=float).reshape(3)
         if not np.all(np.isfinite(grasp_target)):
             raise ValueError(f"grasp_target must be finite, got {grasp_target}")
-        return CollisionEnvironment(field=DistanceField.from_points(points, resolution),
-                                    grasp_target=grasp_target, grasp_target_radius=float(grasp_target_radius),
-                                    grasp_target_floor=support_height(points, grasp_target, grasp_target_radius))
+        points = self.field.points if self.field is not None else np.zeros((0, 3))
+        return dataclasses.replace(self, grasp_target=grasp_target, grasp_target_radius=float(radius),
+                                   grasp_target_floor=support_height(points, grasp_target, radius))
 
     @staticmethod
     def from_occupancy(occupied: np.ndarray, origin: np.ndarray, resolution: float) -> "CollisionEnvironment":

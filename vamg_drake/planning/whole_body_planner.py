@@ -417,33 +417,36 @@ class WholeBodyPlanner:
             q = np.concatenate([trajectory.sample(from_time)[None], q[keep]])
         return self.path_is_valid(q)
 
-    def path_is_valid(self, path: np.ndarray) -> bool:
+    def path_is_valid(self, path: np.ndarray, checker: CollisionChecker | None = None) -> bool:
         """The planner's validity rule for a path (N, 11) of straight segments:
         free for the padded spheres at the motion resolution, except for a
         leading and a trailing piece that may be inside the padding but must
-        be free for the unpadded spheres (see the module docstring)."""
-        checker = self.checker
+        be free for the unpadded spheres (see the module docstring); against
+        the planner's environment, or `checker`'s (one of `checker.with_environment`)."""
+        own = checker is None
+        checker = self.checker if own else checker
         dense = densify(np.asarray(path, dtype=float), checker)
         if checker.first_collision(dense) < 0:
             return True
+        bare = self._unpadded_checker() if own else checker.unpadded()
         free = checker.is_free(dense)
         ok = np.flatnonzero(free)
         if ok.size == 0:
-            return self._unpadded_path_free(dense)
+            return self._unpadded_path_free(dense, bare)
         i0, i1 = int(ok[0]), int(ok[-1])
         if not free[i0:i1 + 1].all():
             return False
-        return ((i0 == 0 or self._unpadded_path_free(dense[:i0 + 1]))
-                and (i1 == dense.shape[0] - 1 or self._unpadded_path_free(dense[i1:])))
+        return ((i0 == 0 or self._unpadded_path_free(dense[:i0 + 1], bare))
+                and (i1 == dense.shape[0] - 1 or self._unpadded_path_free(dense[i1:], bare)))
 
     def _unpadded_checker(self) -> CollisionChecker:
         if self._bare is None or self._bare.env is not self.checker.env:
             self._bare = self.checker.unpadded()
         return self._bare
 
-    def _unpadded_path_free(self, path: np.ndarray) -> bool:
+    def _unpadded_path_free(self, path: np.ndarray, bare: CollisionChecker | None = None) -> bool:
         """Path (N, 11) free for the unpadded spheres at `end_check_resolution`."""
-        bare = self._unpadded_checker()
+        bare = bare or self._unpadded_checker()
         return bare.first_collision(densify(path, bare, resolution=self.config.end_check_resolution)) < 0
 
     def _escape_candidates(self, q: np.ndarray) -> np.ndarray:
