@@ -394,11 +394,11 @@ class MotionSupervisor:
 
     def _plan(self, goal: SubgoalCommand, q: np.ndarray, t: float, revision: int) -> PlannedTrajectory:
         self.last_replan_time = t
-        if self.before_planning is not None:
-            self.before_planning()
         t0 = time.perf_counter()
         approach_index = -1
         try:
+            if self.before_planning is not None:
+                self.before_planning()  # a bad map raises here: a recorded planning failure
             q_goal = np.asarray(goal.q_goal, dtype=float)
             result = self.planner.plan(q, q_goal)
             if (not result.success and result.reason == FailureReason.GOAL_IN_COLLISION
