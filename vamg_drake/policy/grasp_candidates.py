@@ -28,6 +28,7 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
+from vamg_drake.planning.collision import support_height
 from vamg_drake.robot.layout import GRIPPER_MAX_OPENING
 
 
@@ -165,13 +166,14 @@ class AntipodalGraspConfig:
     #: closing-axis yaws from its major axis (0: none): the straight-down approach, the closing
     #: axis level and through the middle of the cluster's extent along it, the
     #: pads' middle 3 cm under its top or, for a low object, as low as the
-    #: fingertips clear the support surface by ``top_down_floor_clearance``.
+    #: fingertips clear the support surface by ``top_down_floor_clearance``
+    #: (beyond the 5 mm for sensor noise of `support_height`).
     #: They pass the same clearance and first-contact tests as the antipodal
     #: pairs, whose random seeds and PCA normals rarely pair up on a small or
     #: lumpy object (static s0009: one grasp on a Lego brick; marbles,
     #: racquetball, plum: none or none reachable).
     top_down_yaws: int = 16
-    top_down_floor_clearance: float = 0.005
+    top_down_floor_clearance: float = 0.0
     #: Grasp quality (in [0, 1], as the antipodal alignment) given to top-down grasps.
     top_down_quality: float = 0.8
     #: Cluster points: linked to the target's nearest point by steps of at
@@ -258,7 +260,7 @@ class AntipodalGraspSampler:
                 f"{cfg.grasp_radius} m (need {cfg.min_points})"
             )
         normals = self._prepare(crop)
-        families = [self._antipodal_family(crop, normals, near, rng), self._top_down_family(crop, normals, near, p_WT)]
+        families = [self._antipodal_family(crop, normals, near, rng), self._top_down_family(crop, near, p_WT)]
         families = [f for f in families if f is not None]
         if not families:
             return GraspCandidates.empty("no antipodal contact pair within the gripper opening near the target")
@@ -306,14 +308,13 @@ class AntipodalGraspSampler:
         rep = lambda a: np.repeat(a, cfg.num_approaches, axis=0)  # noqa: E731
         return x_axis, rep(y_axis), rep(center), rep(width), rep(quality)
 
-    def _top_down_family(self, crop: np.ndarray, normals: np.ndarray, near: np.ndarray,
-                         p_WT: np.ndarray) -> tuple | None:
+    def _top_down_family(self, crop: np.ndarray, near: np.ndarray, p_WT: np.ndarray) -> tuple | None:
         """Top-down grasps of the target's cluster (``top_down_yaws``), in the
         form of `_antipodal_family`; None when there are none."""
         cfg = self.config
         if cfg.top_down_yaws < 1:
             return None
-        cluster = self._target_cluster(crop, normals, near, p_WT)
+        cluster = self._target_cluster(crop, near, p_WT)
         if cluster is None:
             return None
         points, z_support = cluster
@@ -342,8 +343,7 @@ class AntipodalGraspSampler:
         x_axis = np.tile([0.0, 0.0, -1.0], (int(keep.sum()), 1))
         return x_axis, y_axis[keep], center[keep], width[keep], np.full(int(keep.sum()), cfg.top_down_quality)
 
-    def _target_cluster(self, crop: np.ndarray, normals: np.ndarray, near: np.ndarray,
-                        p_WT: np.ndarray) -> tuple[np.ndarray, float] | None:
+    def _target_cluster(self, crop: np.ndarray, near: np.ndarray, p_WT: np.ndarray) -> tuple[np.ndarray, float] | None:
         """The target's points (those within ``grasp_radius`` linked to its
         nearest point, above its support surface) and the support's height
         (-inf when none is seen); None when too few."""
@@ -351,14 +351,8 @@ class AntipodalGraspSampler:
         local = crop[near]
         if local.shape[0] < cfg.min_points:
             return None
-        # The support: the most populated 1 cm layer of level points at or below the target.
-        level = (np.abs(normals[near][:, 2]) > 0.8) & (local[:, 2] <= p_WT[2])
-        z_support = -np.inf
-        if np.count_nonzero(level) >= cfg.min_points:
-            bins = np.floor(local[level, 2] / 0.01).astype(np.int64)
-            values, counts = np.unique(bins, return_counts=True)
-            layer = values[np.argmax(counts)]
-            z_support = float(np.max(local[level][np.abs(bins - layer) <= 1, 2]))
+        # The support: the plane under the target (a table top), as the collision model sees it.
+        z_support = support_height(crop, p_WT, cfg.grasp_radius)
         above = local[local[:, 2] > z_support + max(self._spacing, cfg.voxel_size)]
         if above.shape[0] < cfg.min_support:
             return None
