@@ -82,24 +82,33 @@ def test_a_robot_behind_schedule_gets_slack_in_proportion_to_the_motion():
     assert feedback.goal_id == 4 and feedback.event == MotionEvent.FAILED
 
 
-def test_the_target_exempts_the_gripper_only_while_moving_to_a_grasp():
-    """The target's points block the whole robot for pre-grasp and observe
-    goals; only a grasp's own motion lets the gripper near them."""
+def test_the_target_exempts_the_gripper_only_around_it():
+    """The planning environment keeps the target's points for the gripper too
+    (every phase); only a grasp-move that starts with the open gripper around
+    the target is planned with the gripper allowed its points."""
+    from vamg_drake.robot.kinematics import FetchKinematics
+
     system, context = _system()
-    target = np.array([2.0, 2.0, 0.8])
-    ball = target + 0.03 * np.random.default_rng(0).normal(size=(200, 3))
+    q_pre = np.array([2.0, 2.0, 0.0, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # arm straight out
+    X_WG = FetchKinematics.instance().gripper_pose(q_pre)
+    target = X_WG[:3, 3] + 0.05 * X_WG[:3, 0]
+    d = np.random.default_rng(0).normal(size=(300, 3))
+    ball = target + 0.025 * d / np.linalg.norm(d, axis=1, keepdims=True)
     system.GetInputPort("point_map").FixValue(context, AbstractValue.Make(
         PointMapSnapshot(ball, np.zeros(len(ball), np.int64), 0.03, 1)))
     system.GetInputPort("target").FixValue(context, target)
-    q0 = layout.stow_configuration(0.0, 0.0, 0.0)
-    system.GetInputPort("robot_configuration").FixValue(context, q0)
+    system.GetInputPort("robot_configuration").FixValue(context, q_pre)
     simulator = Simulator(system, context)
-    for goal_id, phase, exempt in ((1, Phase.PREGRASP, False), (2, Phase.GRASP_MOVE, True),
-                                   (3, Phase.OBSERVE, False)):
-        system.GetInputPort("goal").FixValue(context, AbstractValue.Make(_goal(goal_id, q0, "hold", phase)))
+    q_grasp_move = q_pre.copy()
+    q_grasp_move[-1] += 0.1  # a wrist roll at the pre-grasp
+    plans = {}
+    for goal_id, phase in ((1, Phase.OBSERVE), (2, Phase.GRASP_MOVE)):
+        system.GetInputPort("goal").FixValue(context, AbstractValue.Make(_goal(goal_id, q_grasp_move, "plan", phase)))
         simulator.AdvanceTo(context.get_time() + 0.1)
-        assert (system.planner.checker.env.grasp_target_radius > 0.0) == exempt, phase
-
+        assert system.planner.checker.env.grasp_target_radius == 0.0, phase
+        plans[phase] = system.GetOutputPort("trajectory").Eval(context)
+    assert not plans[Phase.OBSERVE].success  # the gripper starts inside the target's points
+    assert plans[Phase.GRASP_MOVE].success and plans[Phase.GRASP_MOVE].approach_index == 0
 
 def test_arm_floor_clearance_sees_the_gripper_on_the_floor():
     """The floor is not in the map: the motion layer measures how low the arm's

@@ -428,7 +428,7 @@ class WholeBodyPlanner:
         dense = densify(np.asarray(path, dtype=float), checker)
         if checker.first_collision(dense) < 0:
             return True
-        bare = self._unpadded_checker() if own else checker.unpadded()
+        bare = self.unpadded_checker() if own else checker.unpadded()
         free = checker.is_free(dense)
         ok = np.flatnonzero(free)
         if ok.size == 0:
@@ -439,14 +439,15 @@ class WholeBodyPlanner:
         return ((i0 == 0 or self._unpadded_path_free(dense[:i0 + 1], bare))
                 and (i1 == dense.shape[0] - 1 or self._unpadded_path_free(dense[i1:], bare)))
 
-    def _unpadded_checker(self) -> CollisionChecker:
+    def unpadded_checker(self) -> CollisionChecker:
+        """`CollisionChecker.unpadded` of the planner's checker (cached per environment)."""
         if self._bare is None or self._bare.env is not self.checker.env:
             self._bare = self.checker.unpadded()
         return self._bare
 
     def _unpadded_path_free(self, path: np.ndarray, bare: CollisionChecker | None = None) -> bool:
         """Path (N, 11) free for the unpadded spheres at `end_check_resolution`."""
-        bare = bare or self._unpadded_checker()
+        bare = bare or self.unpadded_checker()
         return bare.first_collision(densify(path, bare, resolution=self.config.end_check_resolution)) < 0
 
     def _escape_candidates(self, q: np.ndarray) -> np.ndarray:
@@ -511,7 +512,7 @@ class WholeBodyPlanner:
         qg, msg = self.validate_configuration(q_goal, "goal")
         if qg is None:
             return fail(FailureReason.INVALID_INPUT, msg)
-        bare = self._unpadded_checker()
+        bare = self.unpadded_checker()
         if not bare.is_free(qs[None])[0]:
             return fail(FailureReason.START_IN_COLLISION,
                         "the start configuration is in collision (the unpadded spheres penetrate the "

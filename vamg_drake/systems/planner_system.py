@@ -25,7 +25,7 @@ from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment
 from vamg_drake.planning.smoothing import time_parametrize
 from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig, WholeBodyPlanner
-from vamg_drake.policy.behaviour_tree import GRASP_PHASES, MotionEvent, Phase, SubgoalCommand
+from vamg_drake.policy.behaviour_tree import MotionEvent, Phase, SubgoalCommand
 from vamg_drake.robot import layout
 from vamg_drake.robot.spheres import SphereModel
 from vamg_drake.systems.timing import ModuleTimings
@@ -105,12 +105,15 @@ class PlannerSystemConfig:
         period: how often the system looks for work (new goal, new map) [s].
         floor_z: map points below this height are the floor, not obstacles [m].
         target_clearance: map points this close to the target are the object
-            to grasp: while moving to a grasp's pre-grasp pose they are
-            obstacles to the robot except its gripper, which is meant to reach
-            them; for every other goal (pre-grasp, observe) they are obstacles
-            to the gripper too (static s0001: with the exemption on every
-            motion the palm swept through the target between two pre-grasp
-            poses) [m].
+            to grasp, which the gripper may touch (the rest of the robot may
+            not) only where it is meant to: on the straight approach that ends
+            a pre-grasp or grasp-move motion (`approach_retreat`), and on a
+            grasp-move motion that starts with the gripper already around the
+            target (from the reached pre-grasp). Everywhere else they are
+            obstacles to the gripper too (static s0001: with the exemption on
+            every motion the palm swept through the target between two
+            pre-grasp poses; static s0008: the gripper touched the table while
+            unfolding the arm from the stow to a grasp's pre-grasp) [m].
         reach_tolerance: every joint of q within this of the goal reports REACHED.
         linear_reach_tolerance: the same for "linear" goals (the grasp approach
             and lift), which must end on the grasp pose: 0.03 rad per arm joint
@@ -133,9 +136,9 @@ class PlannerSystemConfig:
         floor_clearance: a planned path whose arm spheres come closer to the
             floor than this is rejected (FAILED, `FLOOR_REASON`); the floor is
             not in the map (static s0000: the gripper touched the floor) [m].
-        approach_retreat: a pre-grasp goal whose gripper touches the target's
-            points (the open fingers straddle the object, and the sphere model
-            fills the space between them) is reached in two parts: a path free
+        approach_retreat: a pre-grasp or grasp-move goal whose gripper touches
+            the target's points (the open fingers straddle the object, and the
+            sphere model fills the space between them) is reached in two parts: a path free
             of every point to the goal with the gripper drawn back this far
             along its approach axis (IK, base and torso fixed), then the
             straight joint-space approach, on which the gripper may touch the
@@ -299,7 +302,8 @@ class MotionSupervisor:
         if plan.approach_index < 0:
             return check(rest, False)
         split = max(plan.approach_index - k, 0)
-        return check(rest[:split + 1], False) and (split >= len(rest) - 1 or check(rest[split:], True))
+        return ((split == 0 or check(rest[:split + 1], False))
+                and (split >= len(rest) - 1 or check(rest[split:], True)))
 
     def check_path(self, path: np.ndarray, exempt: bool) -> bool:
         """`WholeBodyPlanner.path_is_valid` on the planner's environment, or
@@ -321,6 +325,15 @@ class MotionSupervisor:
             exempt_env = env.with_grasp_target(self.target, self.config.target_clearance)
             self._exempt = (env, self.planner.checker.with_environment(exempt_env), np.array(self.target))
         return self._exempt[1]
+
+    def _plan_with(self, env: CollisionEnvironment, q: np.ndarray, q_goal: np.ndarray):
+        """`WholeBodyPlanner.plan` in another environment (the planner's is restored)."""
+        own = self.planner.checker.env
+        self.planner.set_environment(env)
+        try:
+            return self.planner.plan(q, q_goal)
+        finally:
+            self.planner.set_environment(own)
 
     def _approach_entry(self, q_goal: np.ndarray) -> np.ndarray | None:
         """The configuration with the gripper `approach_retreat` back along
@@ -400,9 +413,17 @@ class MotionSupervisor:
             if self.before_planning is not None:
                 self.before_planning()  # a bad map raises here: a recorded planning failure
             q_goal = np.asarray(goal.q_goal, dtype=float)
-            result = self.planner.plan(q, q_goal)
+            exempt = self.exempt_checker() if goal.phase in (Phase.PREGRASP, Phase.GRASP_MOVE) else None
+            if (exempt is not None and goal.phase == Phase.GRASP_MOVE
+                    and not self.planner.unpadded_checker().is_free(q[None])[0]):
+                # From the reached pre-grasp, the gripper already around the
+                # target: the whole (short) motion may touch its points.
+                result = self._plan_with(exempt.env, q, q_goal)
+                approach_index = 0
+            else:
+                result = self.planner.plan(q, q_goal)
             if (not result.success and result.reason == FailureReason.GOAL_IN_COLLISION
-                    and goal.phase == Phase.PREGRASP):
+                    and exempt is not None and approach_index < 0):
                 q_entry = self._approach_entry(q_goal)
                 if q_entry is not None:
                     to_entry = self.planner.plan(q, q_entry)
@@ -587,8 +608,8 @@ class PlannerSystem(LeafSystem):
             p = np.asarray(self._target_port.Eval(context), dtype=float)
             p_WT = p if np.all(np.isfinite(p)) else None
         t = context.get_time()
-        self._supervisor.target = p_WT  # for pre-grasp approaches
-        p_WT = p_WT if goal.phase in GRASP_PHASES else None
+        self._supervisor.target = p_WT  # for the approaches to the target
+        p_WT = None  # the planning environment keeps the target's points for the gripper too
         new_goal = goal.goal_id != plan.goal_id
         refresh = new_goal or t - self._env_time >= self._config.recheck_period - 1e-9
         self._supervisor.path_check = None
