@@ -322,7 +322,7 @@ class AntipodalGraspSampler:
         # divisible by 4 the set closes along both principal axes, where a
         # box's faces (not its corners) meet the pads first.
         xy = points[:, :2] - points[:, :2].mean(axis=0)
-        eigval, eigvec = np.linalg.eigh(xy.T @ xy)
+        _, eigvec = np.linalg.eigh(xy.T @ xy)
         yaw0 = float(np.arctan2(eigvec[1, 1], eigvec[0, 1]))
         yaw = yaw0 + np.arange(cfg.top_down_yaws) * (2 * np.pi / cfg.top_down_yaws)
         y_axis = np.stack([np.cos(yaw), np.sin(yaw), np.zeros_like(yaw)], axis=1)

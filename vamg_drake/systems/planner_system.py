@@ -140,7 +140,8 @@ class PlannerSystemConfig:
             the target's points (the open fingers straddle the object, and the
             sphere model fills the space between them) is reached in two parts: a path free
             of every point to the goal with the gripper drawn back this far
-            along its approach axis (IK, base and torso fixed), then the
+            along its approach axis (or half as far where the arm cannot
+            reach back so far; IK, base and torso fixed), then the
             straight joint-space approach, on which the gripper may touch the
             target's points as the pre-grasp sampler allows. Without it such
             goals were "in collision" for the planner, which plans pre-grasp
@@ -335,10 +336,11 @@ class MotionSupervisor:
         finally:
             self.planner.set_environment(own)
 
-    def _approach_entry(self, q_goal: np.ndarray) -> np.ndarray | None:
-        """The configuration with the gripper `approach_retreat` back along
-        its approach axis from q_goal (base and torso fixed), when the straight
-        approach from it to q_goal is valid with the gripper's exemption; else None."""
+    def _approach_entry(self, q_goal: np.ndarray) -> tuple[np.ndarray, float] | None:
+        """(configuration, distance): the gripper `approach_retreat` (or, where
+        the arm cannot reach that far back, half of it) back along its approach
+        axis from q_goal (base and torso fixed), the straight approach from it
+        to q_goal valid with the gripper's exemption; else None."""
         exempt = self.exempt_checker()
         if exempt is None or self.config.approach_retreat <= 0.0:
             return None
@@ -346,13 +348,17 @@ class MotionSupervisor:
         from vamg_drake.robot.kinematics import FetchKinematics
 
         self._ik = self._ik or FastIk()
-        X = FetchKinematics.instance().gripper_pose(q_goal)
-        X[:3, 3] -= self.config.approach_retreat * X[:3, 0]
-        q_entry, ok = self._ik.solve_arm(X[None], q_goal)
-        if not ok[0]:
-            return None
-        segment = linear_trajectory(q_entry[0], q_goal, 0.0, self.config.linear_speed_fraction).q
-        return q_entry[0] if self.planner.path_is_valid(segment, checker=exempt) else None
+        X_WG = FetchKinematics.instance().gripper_pose(q_goal)
+        for distance in (self.config.approach_retreat, 0.5 * self.config.approach_retreat):
+            X = X_WG.copy()
+            X[:3, 3] -= distance * X[:3, 0]
+            q_entry, ok = self._ik.solve_arm(X[None], q_goal)
+            if not ok[0]:
+                continue
+            segment = linear_trajectory(q_entry[0], q_goal, 0.0, self.config.linear_speed_fraction).q
+            if self.planner.path_is_valid(segment, checker=exempt):
+                return q_entry[0], distance
+        return None
 
     def _record(self, q: np.ndarray, t: float) -> None:
         """Keeps the robot's configurations of the last `retreat_history_time` seconds."""
@@ -424,12 +430,12 @@ class MotionSupervisor:
                 result = self.planner.plan(q, q_goal)
             if (not result.success and result.reason == FailureReason.GOAL_IN_COLLISION
                     and exempt is not None and approach_index < 0):
-                q_entry = self._approach_entry(q_goal)
-                if q_entry is not None:
-                    to_entry = self.planner.plan(q, q_entry)
+                entry = self._approach_entry(q_goal)
+                if entry is not None:
+                    to_entry = self.planner.plan(q, entry[0])
                     if to_entry.success:
                         _log.info("motion t=%.2f: goal %d: planned to %.2f m back along the approach, then straight in",
-                                  t, goal.goal_id, self.config.approach_retreat)
+                                  t, goal.goal_id, entry[1])
                         path = to_entry.trajectory
                         last = linear_trajectory(path.q[-1], q_goal, path.times[-1], self.config.linear_speed_fraction)
                         approach_index = path.q.shape[0] - 1
