@@ -26,7 +26,9 @@ from vamg_drake.planning.smoothing import time_parametrize
 from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig, WholeBodyPlanner
 from vamg_drake.policy.behaviour_tree import MotionEvent, Phase, SubgoalCommand
+from vamg_drake.policy.ik import FastIk
 from vamg_drake.robot import layout
+from vamg_drake.robot.kinematics import FetchKinematics
 from vamg_drake.robot.spheres import SphereModel
 from vamg_drake.systems.timing import ModuleTimings
 
@@ -79,9 +81,10 @@ class PlannedTrajectory:
         error: the exception text when the planner raised.
         retreat: the trajectory backs out along the robot's own recent path
             (the map put the start in collision); the goal is planned from its end.
-        approach_index: from this waypoint on, the trajectory is the straight
-            approach to a pre-grasp goal, on which the gripper may touch the
-            target's points (`PlannerSystemConfig.approach_retreat`); -1: none.
+        approach_index: from this waypoint on, the gripper may touch the
+            target's points: the straight approach that ends a pre-grasp or
+            grasp-move motion (`PlannerSystemConfig.approach_retreat`), or 0
+            for a grasp-move that starts around the target; -1: nowhere.
     """
 
     goal_id: int = -1
@@ -232,10 +235,10 @@ class MotionSupervisor:
         self.path_check: Callable[[np.ndarray, bool], bool] | None = None
         #: Called before every plan: brings the planner's environment up to date.
         self.before_planning: Callable[[], None] | None = None
-        #: The grasp target p_WT (3,) of pre-grasp approaches, or None.
+        #: The grasp target p_WT (3,) of the approaches to it, or None.
         self.target: np.ndarray | None = None
         self._exempt: tuple | None = None  # (environment, its checker with the target's exemption)
-        self._ik = None
+        self._ik: FastIk | None = None  # built on the first approach
 
     def tick(self, plan: PlannedTrajectory, goal: SubgoalCommand | None, q: np.ndarray, t: float,
              revision: int) -> tuple[PlannedTrajectory, MotionEvent]:
@@ -320,8 +323,6 @@ class MotionSupervisor:
         env = self.planner.checker.env
         if self.target is None:
             return None
-        if env.grasp_target_radius > 0.0:
-            return self.planner.checker
         if self._exempt is None or self._exempt[0] is not env or not np.array_equal(self._exempt[2], self.target):
             exempt_env = env.with_grasp_target(self.target, self.config.target_clearance)
             self._exempt = (env, self.planner.checker.with_environment(exempt_env), np.array(self.target))
@@ -336,6 +337,21 @@ class MotionSupervisor:
         finally:
             self.planner.set_environment(own)
 
+    def _plan_via_approach(self, q: np.ndarray, q_goal: np.ndarray) -> tuple | None:
+        """(plan result, approach index, distance): a plan to the approach's
+        entry (`_approach_entry`) followed by the straight approach; None
+        without an entry or a plan to it."""
+        entry = self._approach_entry(q_goal)
+        if entry is None:
+            return None
+        to_entry = self.planner.plan(q, entry[0])
+        if not to_entry.success:
+            return None
+        path = to_entry.trajectory
+        last = linear_trajectory(path.q[-1], q_goal, path.times[-1], self.config.linear_speed_fraction)
+        joined = TimedTrajectory(np.concatenate([path.times, last.times[1:]]), np.concatenate([path.q, last.q[1:]]))
+        return dc.replace(to_entry, trajectory=joined), path.q.shape[0] - 1, entry[1]
+
     def _approach_entry(self, q_goal: np.ndarray) -> tuple[np.ndarray, float] | None:
         """(configuration, distance): the gripper `approach_retreat` (or, where
         the arm cannot reach that far back, half of it) back along its approach
@@ -344,9 +360,6 @@ class MotionSupervisor:
         exempt = self.exempt_checker()
         if exempt is None or self.config.approach_retreat <= 0.0:
             return None
-        from vamg_drake.policy.ik import FastIk
-        from vamg_drake.robot.kinematics import FetchKinematics
-
         self._ik = self._ik or FastIk()
         X_WG = FetchKinematics.instance().gripper_pose(q_goal)
         for distance in (self.config.approach_retreat, 0.5 * self.config.approach_retreat):
@@ -430,17 +443,11 @@ class MotionSupervisor:
                 result = self.planner.plan(q, q_goal)
             if (not result.success and result.reason == FailureReason.GOAL_IN_COLLISION
                     and exempt is not None and approach_index < 0):
-                entry = self._approach_entry(q_goal)
-                if entry is not None:
-                    to_entry = self.planner.plan(q, entry[0])
-                    if to_entry.success:
-                        _log.info("motion t=%.2f: goal %d: planned to %.2f m back along the approach, then straight in",
-                                  t, goal.goal_id, entry[1])
-                        path = to_entry.trajectory
-                        last = linear_trajectory(path.q[-1], q_goal, path.times[-1], self.config.linear_speed_fraction)
-                        approach_index = path.q.shape[0] - 1
-                        result = dc.replace(to_entry, trajectory=TimedTrajectory(
-                            np.concatenate([path.times, last.times[1:]]), np.concatenate([path.q, last.q[1:]])))
+                via = self._plan_via_approach(q, q_goal)
+                if via is not None:
+                    result, approach_index, distance = via
+                    _log.info("motion t=%.2f: goal %d: planned to %.2f m back along the approach, then straight in",
+                              t, goal.goal_id, distance)
         except Exception as e:  # noqa: BLE001 - a planner bug becomes a recorded planning failure
             _log.error("WholeBodyPlanner t=%.2f: planner raised on goal %d:\n%s", t, goal.goal_id, traceback.format_exc())
             return PlannedTrajectory(goal.goal_id, None, False, EXCEPTION_REASON, revision,
@@ -531,25 +538,21 @@ class PlannerSystem(LeafSystem):
     def planner(self) -> WholeBodyPlanner:
         return self._planner
 
-    def _set_map(self, snapshot, p_WT: np.ndarray | None) -> int:
-        """Rebuilds the planning environment when the map revision (or the
-        grasp target) changed."""
+    def _set_map(self, snapshot) -> int:
+        """Rebuilds the planning environment when the map revision changed."""
         revision = -1 if snapshot is None else int(snapshot.revision)
-        key = (revision, None if p_WT is None else tuple(np.round(p_WT, 3)))
-        if key != self._env_key:
+        if revision != self._env_key:
             t0 = time.perf_counter()
             if snapshot is None or snapshot.num_points == 0:
                 env = CollisionEnvironment()
                 self._env_points = (np.zeros(0, np.int64), np.zeros((0, 3)))
             else:
                 keys, points = self._obstacles(snapshot)
-                env = CollisionEnvironment.from_points(points, resolution=float(snapshot.voxel_size),
-                                                       grasp_target=p_WT,
-                                                       grasp_target_radius=self._config.target_clearance)
+                env = CollisionEnvironment.from_points(points, resolution=float(snapshot.voxel_size))
                 order = np.argsort(keys, kind="stable")
                 self._env_points = (keys[order], points[order])
             self._planner.set_environment(env)
-            self._env_key = key
+            self._env_key = revision
             if self._timings is not None:
                 self._timings.add("planner_environment", 1e3 * (time.perf_counter() - t0))
         return revision
@@ -585,14 +588,10 @@ class PlannerSystem(LeafSystem):
             return lambda path, exempt: True
         delta = CollisionEnvironment.from_points(new, resolution=float(snapshot.voxel_size))
         checker = self._planner.checker
-        exempt_checker = self._supervisor.exempt_checker()
-
-        def like(env: CollisionEnvironment) -> CollisionChecker:
-            return checker.with_environment(dc.replace(
-                delta, grasp_target=env.grasp_target, grasp_target_radius=env.grasp_target_radius,
-                grasp_target_floor=env.grasp_target_floor))
-
-        checkers = {False: like(checker.env), True: None if exempt_checker is None else like(exempt_checker.env)}
+        exempt = self._supervisor.exempt_checker()
+        checkers = {False: checker.with_environment(delta), True: None if exempt is None else checker.with_environment(
+            dc.replace(delta, grasp_target=exempt.env.grasp_target, grasp_target_radius=exempt.env.grasp_target_radius,
+                       grasp_target_floor=exempt.env.grasp_target_floor))}
 
         def check(path: np.ndarray, exempt: bool) -> bool:
             return checkers[exempt] is not None and self._planner.path_is_valid(path, checker=checkers[exempt])
@@ -614,27 +613,24 @@ class PlannerSystem(LeafSystem):
             p = np.asarray(self._target_port.Eval(context), dtype=float)
             p_WT = p if np.all(np.isfinite(p)) else None
         t = context.get_time()
-        self._supervisor.target = p_WT  # for the approaches to the target
-        p_WT = None  # the planning environment keeps the target's points for the gripper too
+        self._supervisor.target = p_WT  # for the approaches to the target (`exempt_checker`)
         new_goal = goal.goal_id != plan.goal_id
         refresh = new_goal or t - self._env_time >= self._config.recheck_period - 1e-9
         self._supervisor.path_check = None
         # Whatever the supervisor plans is planned on this tick's map.
-        self._supervisor.before_planning = functools.partial(self._set_map, snapshot, p_WT)
+        self._supervisor.before_planning = functools.partial(self._set_map, snapshot)
         if refresh:
             revision = -1 if snapshot is None else int(snapshot.revision)
-            same_target = self._env_key is not None and self._env_key[1] == (
-                None if p_WT is None else tuple(np.round(p_WT, 3)))
             try:
                 check = None
-                if (self._config.incremental_check and not new_goal and same_target and snapshot is not None
-                        and revision != self._env_revision):
+                if (self._config.incremental_check and not new_goal and self._env_key is not None
+                        and snapshot is not None and revision != self._env_revision):
                     check = self._new_points_check(snapshot)
                 if check is not None:
                     self._supervisor.path_check = check  # the new points only; rebuilt to plan
                     self._env_revision = revision
                 else:
-                    self._env_revision = self._set_map(snapshot, p_WT)
+                    self._env_revision = self._set_map(snapshot)
             except ValueError as e:
                 _log.error("WholeBodyPlanner: bad map (%s)", e)
                 return EventStatus.Succeeded()
