@@ -176,10 +176,9 @@ class SubgoalPipeline:
             local = np.array([[1e3, 1e3, 1e3]])  # nothing observed: one far point
         env = CollisionEnvironment.from_points(local, cfg.collision_resolution, grasp_target=p_WT,
                                                grasp_target_radius=cfg.target_clearance)
-        is_free = CollisionChecker.for_fetch(env, CollisionCheckerConfig()).is_free
-        grasp_free = CollisionChecker.for_fetch(dc.replace(env, grasp_target_floor=-np.inf),
-                                                CollisionCheckerConfig()).is_free
-        self._cache_key, self._cache = key, (is_free, grasp_free)
+        checker = CollisionChecker.for_fetch(env, CollisionCheckerConfig())
+        grasp_free = checker.with_environment(dc.replace(env, grasp_target_floor=-np.inf)).is_free
+        self._cache_key, self._cache = key, (checker.is_free, grasp_free)
         return self._cache[int(grasp)]
 
     @staticmethod
