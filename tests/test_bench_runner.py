@@ -45,9 +45,20 @@ def test_smoke_suite_end_to_end_for_two_methods(smoke_root, tmp_path):
     for r in records:
         assert r["status"] in CATEGORIES or r["status"] == ERROR, r
         assert r["shortest_path"] is not None and r["shortest_path"] > 0
+        # Each episode keeps its own log, result and top-down plot beside results.jsonl.
+        episode = out / r["episode_dir"]
+        assert r["episode_dir"] == "episodes/" + r["key"].replace("/", "__")
+        assert json.loads((episode / "episode.json").read_text())["status"] == r["status"]
+        assert f"episode {r['scenario']}: {r['status']}" in (episode / "episode.log").read_text()
+        assert (episode / "topdown.png").stat().st_size > 0
     assert main(["report", str(out)]) == 0
     report = (out / "report.md").read_text()
     assert "| smoke | velocity_agnostic | 2 |" in report and "| smoke | full | 2 |" in report
+    failed = [r for r in records if r["status"] != "success"]
+    assert failed, "a 3 s smoke episode cannot succeed"
+    for r in failed:
+        assert f"| {r['method']} | {r['scenario']} | {r['target']} | {r['status']}" in report
+        assert f"[log]({r['episode_dir']}/episode.log)" in report
     for png in ("success_rates.png", "failures.png", "spl.png", "per_scene.png"):
         assert (out / png).stat().st_size > 0
 

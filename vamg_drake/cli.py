@@ -107,7 +107,8 @@ def _cmd_bench(args) -> int:
         suite = materialize_suite(config, args.out, progress=not args.quiet)
         specs = episode_specs(suite, methods, args.seeds)
         records = run_sweep(specs, args.out, workers=args.workers, backend=args.backend, resume=args.resume,
-                            wall_limit=args.wall_limit, progress=not args.quiet, ray_address=args.ray_address)
+                            wall_limit=args.wall_limit, progress=not args.quiet, ray_address=args.ray_address,
+                            keep_episodes=not args.no_episode_logs)
     except (SuiteError, FileExistsError, ValueError, RuntimeError) as e:
         raise SystemExit(f"vamg bench: {e}") from None
     print(json.dumps({"suite": config.name, "scenarios": len(suite.scenarios), "excluded": len(suite.excluded),
@@ -167,6 +168,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--targets", type=int, default=None, help="override the suite's targets per scene")
     bench.add_argument("--wall-limit", type=float, default=900.0, help="per-episode wall-clock limit [s] (default 900)")
     bench.add_argument("--quiet", action="store_true", help="no progress bars")
+    bench.add_argument("--no-episode-logs", action="store_true",
+                       help="keep no per-episode log, episode.json and top-down plot under DIR/episodes/")
     bench.set_defaults(func=_cmd_bench)
 
     report = sub.add_parser("report", help="write DIR/report.md and plots from a results directory")

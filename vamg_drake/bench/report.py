@@ -292,6 +292,22 @@ def _pct(x: float) -> str:
     return "–" if math.isnan(x) else f"{x:.2f}"
 
 
+def failed_episode_lines(records: list[dict], directory: Path) -> list[str]:
+    """The report's list of failed episodes: status, reason, and a link to the log where one was kept."""
+    failed = [r for r in records if r["status"] != SUCCESS]
+    if not failed:
+        return []
+    lines = ["## Failed episodes", "", "| method | scenario | target | status | at [s] | detail | log |", "|---|---|---|---|---:|---|---|"]
+    for r in sorted(failed, key=lambda r: (r.get("method", ""), r.get("scenario", ""))):
+        status = r["status"] + (f"/{r['planning_kind']}" if r.get("planning_kind") else "")
+        detail = " ".join(str(r.get("detail", "")).split()).replace("|", "/")[:120]
+        episode_dir = r.get("episode_dir", "")
+        link = f"[log]({episode_dir}/episode.log)" if episode_dir and (directory / episode_dir / "episode.log").is_file() else ""
+        lines.append(f"| {r.get('method', '')} | {r.get('scenario', '')} | {r.get('target', '')} | {status} | "
+                     f"{float(r.get('sim_time', 0.0)):.1f} | {detail} | {link} |")
+    return lines + [""]
+
+
 def write_report(directory: str | Path) -> Path:
     """Writes ``DIR/report.md`` and its PNG plots; returns the report's path.
 
@@ -350,6 +366,7 @@ def write_report(directory: str | Path) -> Path:
         lines += ["", "![compute cost](compute_cost.png)", ""]
     else:
         lines += ["No module timings in these results.", ""]
+    lines += failed_episode_lines(records, directory)
     errors = [r for r in records if r.get("error")]
     if errors:
         lines += ["## Harness errors", ""] + [f"- `{r['key']}`: {r['error'].splitlines()[0] if r['error'] else ''}" for r in errors[:50]] + [""]

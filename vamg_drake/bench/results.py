@@ -62,6 +62,8 @@ class EpisodeRecord:
         timings: module -> {count, mean_ms, ...}.
         phases: [[time, phase, reason], ...].
         error: harness error (crash, hang, exception); "" otherwise.
+        episode_dir: the episode's log, episode.json and top-down plot, relative to
+            the results directory ("": none kept).
     """
 
     key: str
@@ -83,6 +85,7 @@ class EpisodeRecord:
     timings: dict = field(default_factory=dict)
     phases: list = field(default_factory=list)
     error: str = ""
+    episode_dir: str = ""
 
     def to_json_line(self) -> str:
         """Returns the record as one line of JSON (with the newline)."""

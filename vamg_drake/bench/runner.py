@@ -7,7 +7,9 @@ wall-clock limit, so a crash, a hang or an exception becomes a recorded
 ``results.py``); ``resume=True`` skips every key already there, so killing a
 sweep and resuming it loses and duplicates nothing. ``backend="ray"`` sends
 the same isolated episodes to a Ray cluster (``ray.init(address)``; a local
-instance when no address is given).
+instance when no address is given). Each episode also writes its log, its
+``episode.json`` and a top-down plot to ``DIR/episodes/<key>/`` (``/`` in the
+key becomes ``__``), so a failure can be read without running it again.
 """
 
 import dataclasses as dc
@@ -49,6 +51,8 @@ class EpisodeSpec:
         trigger_distance: pedestrian trigger distance [m] (None: as in the file).
         run_seed: repetition index.
         shortest_path: l_i for SPL [m].
+        episode_dir: where the episode writes episode.log, episode.json and
+            topdown.png ("": nowhere).
     """
 
     key: str
@@ -63,6 +67,15 @@ class EpisodeSpec:
     trigger_distance: float | None
     run_seed: int
     shortest_path: float | None
+    episode_dir: str = ""
+
+
+EPISODES_DIR = "episodes"
+
+
+def episode_dir_name(key: str) -> str:
+    """The directory name of an episode's outputs under ``DIR/episodes``."""
+    return key.replace("/", "__")
 
 
 def episode_specs(suite: Suite, methods: list[Method], seeds: int) -> list[EpisodeSpec]:
@@ -99,7 +112,7 @@ def run_scenario_episode(spec: EpisodeSpec):
     config = load_method(spec.method_file).config
     if hasattr(config, "seed"):
         config.seed = spec.run_seed
-    return run_episode(scenario, config, out_dir=None, record=False, progress=False)
+    return run_episode(scenario, config, out_dir=spec.episode_dir or None, record=False, progress=False)
 
 
 EpisodeFn = Callable[[EpisodeSpec], object]
@@ -115,13 +128,17 @@ def _record(spec: EpisodeSpec, status: str, wall: float, result: dict | None = N
         sim_time=float(result.get("sim_time", 0.0) or 0.0), wall_time=wall,
         path_length=float(result.get("path_length", 0.0) or 0.0), shortest_path=spec.shortest_path,
         timings=result.get("timings", {}) or {}, phases=result.get("phases", []) or [], error=error,
+        episode_dir=f"{EPISODES_DIR}/{Path(spec.episode_dir).name}" if spec.episode_dir else "",
     )
 
 
 def _child(conn, episode_fn: EpisodeFn, spec: EpisodeSpec) -> None:
     import logging as _logging
 
-    _logging.basicConfig(level=_logging.WARNING)
+    # Warnings to the sweep's stderr; the episode's own INFO log goes to its file.
+    stderr = _logging.StreamHandler()
+    stderr.setLevel(_logging.WARNING)
+    _logging.basicConfig(level=_logging.WARNING, handlers=[stderr])
     try:
         result = episode_fn(spec)
         payload = dc.asdict(result) if dc.is_dataclass(result) else dict(result)
@@ -202,6 +219,7 @@ def run_sweep(
     wall_limit: float = 900.0,
     progress: bool = True,
     ray_address: str | None = None,
+    keep_episodes: bool = True,
 ) -> list[EpisodeRecord]:
     """Runs the episodes not yet in ``out_dir/results.jsonl`` and appends their records.
 
@@ -216,6 +234,8 @@ def run_sweep(
         wall_limit: per-episode wall-clock limit [s].
         progress: show the progress bar.
         ray_address: Ray cluster address (None: start or join a local instance).
+        keep_episodes: write each episode's log, episode.json and top-down plot
+            to ``out_dir/episodes/<key>/`` (an episode run again overwrites its own).
 
     Returns:
         The records written by this call.
@@ -234,6 +254,9 @@ def run_sweep(
     if clash and not resume:
         raise FileExistsError(f"{path} already holds {len(clash)} of these episodes; pass --resume to continue the sweep, or use another --out")
     todo = [s for s in specs if s.key not in done]
+    if keep_episodes:
+        episodes = (Path(out_dir) / EPISODES_DIR).resolve()
+        todo = [dc.replace(s, episode_dir=str(episodes / episode_dir_name(s.key))) for s in todo]
     bar = _Progress(len(specs), len(specs) - len(todo), progress)
     written: list[EpisodeRecord] = []
     with ResultsWriter(path) as writer:
