@@ -150,6 +150,8 @@ def test_pregrasp_goal_straddling_the_target_is_approached_straight_from_behind(
     kin = FetchKinematics.instance()
     p_entry = kin.gripper_pose(plan.trajectory.q[plan.approach_index])[:3, 3]
     assert np.linalg.norm(p_entry - kin.gripper_pose(q_goal)[:3, 3]) == pytest.approx(0.10, abs=0.01)
+    # The tracker must reach the entry before it starts the straight part.
+    assert plan.approach_index in plan.trajectory.stops
     # Without the approach the goal is in collision for the planner.
     _, strict = outcomes[0.0]
     assert not strict.success and strict.reason == FailureReason.GOAL_IN_COLLISION

@@ -271,6 +271,30 @@ def test_a_drive_then_an_arm_motion_has_a_corner_stop_that_is_reached():
     assert arm_started_early[TrackerConfig().corner_angle] < 0.01
 
 
+def test_a_required_stop_is_reached_where_the_look_ahead_would_cut_the_turn():
+    """A 45-degree turn of an arm motion is no corner (`corner_angle` 1.2), so
+    the look-ahead chord cuts it; a `TimedTrajectory.stops` waypoint there (the
+    planner's straight-approach entry) is reached within the stop tolerance."""
+    q0 = _whole_body(np.zeros((1, 3)))[0]
+    first = q0 + np.linspace(0.0, 1.0, 30)[:, None] * np.r_[np.zeros(4), -1.0, np.zeros(6)][None]
+    second = first[-1] + np.linspace(0.0, 1.0, 20)[1:, None] * np.r_[np.zeros(4), -0.5, -0.5, np.zeros(5)][None]
+    path = time_parametrize(np.concatenate([first, second]))
+    entry = first.shape[0] - 1
+    closest = {}
+    for stops in ((), (entry,)):
+        tr = TimedTrajectory(path.times, path.q, stops=stops)
+        core = WholeBodyTrackerCore()
+        assert core.set_trajectory(tr.times, tr.q, tr.q[0], tr.stops) == ""
+        ro = rollout(core, tr.q[0], tr.duration + 5.0)
+        assert ro.done
+        closest[stops] = float(np.min(np.max(np.abs(ro.q[:, 4:6] - tr.q[entry, 4:6]), axis=1)))
+    assert closest[()] > 0.05
+    assert closest[(entry,)] <= TrackerConfig().corner_joint_tolerance + 1e-6
+    with pytest.raises(ValueError, match="stops must index waypoints"):
+        TimedTrajectory(path.times, path.q, stops=(path.num_waypoints,))
+    assert path.shifted(3.0).stops == () and TimedTrajectory(path.times, path.q, stops=(entry,)).shifted(3.0).stops == (entry,)
+
+
 def test_a_pause_in_the_path_does_not_stall():
     a = np.linspace(0.0, 1.0, 34)
     poses = np.stack([a, np.zeros_like(a), np.zeros_like(a)], axis=1)

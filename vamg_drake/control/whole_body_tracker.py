@@ -352,10 +352,11 @@ def _corners(qs: np.ndarray, angle: float) -> np.ndarray:
     return corner[(cos < math.cos(angle)) & involves_arm]
 
 
-def _direction_and_stops(qs: np.ndarray, corner_angle: float = np.pi) -> tuple[np.ndarray, np.ndarray]:
+def _direction_and_stops(qs: np.ndarray, corner_angle: float = np.pi,
+                         required: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(direction (N,), stops) per sample: +1 forward, -1 reverse, 0 no base
     travel on the segment leaving it; stops: cusp and corner sample indices
-    (`_corners`), then N-1.
+    (`_corners`), the `required` sample indices, then N-1.
 
     A run of samples in one direction that travels less than
     `_MIN_RUN_TRAVEL` in all is jitter, not travel (direction 0): an in-place
@@ -384,6 +385,8 @@ def _direction_and_stops(qs: np.ndarray, corner_angle: float = np.pi) -> tuple[n
         if direction[a] != direction[b]:
             stops.append(a + 1)  # the end of the last segment in the old direction
     stops.extend(int(k) for k in _corners(qs, corner_angle) if 0 < k < n - 1)
+    if required is not None:
+        stops.extend(int(k) for k in required if 0 < k < n - 1)
     stops.append(n - 1)
     return direction, np.unique(np.asarray(stops, dtype=int))
 
@@ -498,8 +501,12 @@ class WholeBodyTrackerCore:
                         f"rate limit (max_rate_ratio {cfg.max_rate_ratio}): a jump in time")
         return ""
 
-    def set_trajectory(self, times, q, q_now) -> str:
+    def set_trajectory(self, times, q, q_now, stops=()) -> str:
         """Loads a trajectory (times (N,), q (N, 11)) to track from q_now (11,).
+
+        `stops` are waypoint indices that are stops like cusps and corners
+        (`TimedTrajectory.stops`): the reference waits at each until the robot
+        is within the stop tolerances.
 
         Returns:
             "" when accepted; otherwise the rejection reason (the tracker then
@@ -513,7 +520,9 @@ class WholeBodyTrackerCore:
         q = np.asarray(q, dtype=float)
         q_now = np.asarray(q_now, dtype=float)
         ts, qs, source = _resample(times, q, cfg.resample_dt, cfg.max_resampled_waypoints)
-        direction, stops = _direction_and_stops(qs, cfg.corner_angle)
+        # The original waypoint times are on the grid: waypoint k is the first sample sourced from it.
+        required = np.searchsorted(source, np.asarray(stops, dtype=int), side="left")
+        direction, stops = _direction_and_stops(qs, cfg.corner_angle, required)
         self._ts, self._qs, self._source, self._t0 = ts, qs, source, float(times[0])
         self._direction, self._stops = direction, stops
         self._segment, self._nearest, self._done = 0, 0, False

@@ -27,11 +27,15 @@ class TimedTrajectory:
 
     The planner emits times starting at 0 (relative to the moment the plan was
     requested); use `shifted` to move it onto the simulation clock.
-    The arrays are copied and made read-only on construction.
+    The arrays are copied and made read-only on construction. `stops` are
+    waypoint indices the tracker must reach (within its stop tolerances)
+    before it follows the path on, e.g. the entry of a straight grasp
+    approach, which a look-ahead chord would otherwise cut.
     """
 
     times: np.ndarray
     q: np.ndarray
+    stops: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         times = np.array(self.times, dtype=float, copy=True).reshape(-1)
@@ -69,10 +73,14 @@ class TimedTrajectory:
                     f"TimedTrajectory.q jumps by {step[i, j]:.3f} rad in continuous "
                     f"joint {joint} between waypoints {i} and {i + 1}; unwrap it"
                 )
+        stops = tuple(sorted({int(k) for k in self.stops}))
+        if stops and not 0 <= stops[0] <= stops[-1] < q.shape[0]:
+            raise ValueError(f"TimedTrajectory.stops must index waypoints 0..{q.shape[0] - 1}, got {list(stops)}")
         times.flags.writeable = False
         q.flags.writeable = False
         object.__setattr__(self, "times", times)
         object.__setattr__(self, "q", q)
+        object.__setattr__(self, "stops", stops)
 
     def __copy__(self) -> "TimedTrajectory":
         return self  # immutable (frozen, read-only arrays): copies may share it
@@ -142,7 +150,7 @@ class TimedTrajectory:
 
     def shifted(self, t0: float) -> "TimedTrajectory":
         """A copy whose times start at t0."""
-        return TimedTrajectory(times=self.times - self.times[0] + t0, q=self.q)
+        return TimedTrajectory(times=self.times - self.times[0] + t0, q=self.q, stops=self.stops)
 
     def wrapped_final(self) -> np.ndarray:
         """The final configuration with continuous joints wrapped into [-pi, pi)."""

@@ -349,8 +349,14 @@ class MotionSupervisor:
             return None
         path = to_entry.trajectory
         last = linear_trajectory(path.q[-1], q_goal, path.times[-1], self.config.linear_speed_fraction)
-        joined = TimedTrajectory(np.concatenate([path.times, last.times[1:]]), np.concatenate([path.q, last.q[1:]]))
-        return dc.replace(to_entry, trajectory=joined), path.q.shape[0] - 1, entry[1]
+        entry_index = path.q.shape[0] - 1
+        # The entry is a stop for the tracker: the straight approach is only
+        # straight if the robot is at its entry before it starts (static
+        # s0014: the look-ahead cut from the plan to the goal and the fingers
+        # swept into the soup can from the side at 0.9 m/s).
+        joined = TimedTrajectory(np.concatenate([path.times, last.times[1:]]), np.concatenate([path.q, last.q[1:]]),
+                                 stops=(*path.stops, entry_index))
+        return dc.replace(to_entry, trajectory=joined), entry_index, entry[1]
 
     def _approach_entry(self, q_goal: np.ndarray) -> tuple[np.ndarray, float] | None:
         """(configuration, distance): the gripper `approach_retreat` (or, where

@@ -96,7 +96,7 @@ class WholeBodyTracker(LeafSystem):
             reason = f"trajectory value of type {type(trajectory).__name__} has no .times/.q"
             self._core.reject(reason)
         else:
-            reason = self._core.set_trajectory(times, q_path, q)
+            reason = self._core.set_trajectory(times, q_path, q, getattr(trajectory, "stops", ()))
         if reason:
             _log.warning("WholeBodyTracker rejected a trajectory: %s", reason)
 
