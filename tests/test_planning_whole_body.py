@@ -184,3 +184,27 @@ def test_fixed_base_searches_between_the_along_path_search_rounds(base_checker):
     assert calls[-2:] == [("c", False), ("d", True)], calls
     drake = DrakeCollisionWorld(problem.obstacles)
     assert not any(drake.in_collision(q) for q in _dense_1cm(result.trajectory.q, planner.checker))
+
+
+def test_refine_joins_pieces_around_a_one_waypoint_piece():
+    """A base piece of zero length (one waypoint) between two arm pieces joined
+    nothing, and the next piece's join test indexed the empty remainder (static
+    s0021 and s0036, nav_and_manip: IndexError in the planner)."""
+    from collections import defaultdict
+    import time
+
+    planner = WholeBodyPlanner.for_fetch(CollisionEnvironment(), CONFIG)
+    q0 = layout.stow_configuration(0.0, 0.0, 0.0)
+    q1 = q0.copy()
+    q1[layout.TORSO] += 0.1
+    arm = np.linspace(q0, q1, 4)
+    still = q1[None].copy()
+    q2 = q1.copy()
+    q2[layout.BASE_XY] += 0.2
+    drive = np.linspace(q1, q2, 5)
+    path = planner._refine([arm, still, drive], defaultdict(float), np.random.default_rng(0), time.perf_counter() + 5.0)
+    np.testing.assert_allclose(path[0], q0)
+    np.testing.assert_allclose(path[-1], q2)
+    assert np.all(np.max(np.abs(np.diff(path, axis=0)), axis=1) > 0)  # no repeated waypoint
+    with pytest.raises(RuntimeError, match="do not join"):
+        planner._refine([arm, drive[1:]], defaultdict(float), np.random.default_rng(0), time.perf_counter() + 5.0)

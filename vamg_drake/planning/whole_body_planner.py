@@ -959,16 +959,18 @@ class WholeBodyPlanner:
         tr = time.perf_counter()
         checker = self.checker
         out = []
+        end = None  # the joined path's last waypoint (a one-waypoint piece adds none)
         for P in pieces:
             fixed_base = np.all(np.abs(P[:, :3] - P[0, :3]) < 1e-12)
             if fixed_base and P.shape[0] > 2 and time.perf_counter() < deadline:
                 P = smoothing.smooth_if_free(
                     P, lambda S: checker.first_collision(densify(S, checker)) < 0,
                     self.config.bspline_samples)
-            if out and np.max(np.abs(P[0] - out[-1][-1])) > 1e-9:
+            if end is not None and np.max(np.abs(P[0] - end)) > 1e-9:
                 # Pieces must join where they were checked; a gap is a bug.
-                raise RuntimeError(f"whole-body path pieces do not join (gap {np.max(np.abs(P[0] - out[-1][-1]))})")
-            out.append(P if not out else P[1:])
+                raise RuntimeError(f"whole-body path pieces do not join (gap {np.max(np.abs(P[0] - end))})")
+            out.append(P if end is None else P[1:])
+            end = P[-1]
         dense = densify(np.concatenate(out), checker)
         timings["refine"] += 1e3 * (time.perf_counter() - tr)
         return dense
