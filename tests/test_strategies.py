@@ -148,6 +148,17 @@ def test_invalidated_goal_is_replanned_when_still_free_else_per_strategy() -> No
         else:
             assert after.phase == cmd.phase and not np.array_equal(after.q_goal, cmd.q_goal), cls
             assert bt.goals_issued["pre_grasp"] == 1  # an invalidated goal does not use up the budget
+    # A goal the samplers call free but the planner keeps invalidating is
+    # replanned once (max_same_goal_replans), then resampled.
+    for cls in (NavAndManipBehaviour, ClosedLoopReplanningBehaviour):
+        bt, s, _ = _scripted(cls, goal_is_free=lambda i, q: True)
+        cmd = bt.step(_inputs())
+        again = bt.step(_inputs(1.0), MotionEvent.INVALIDATED)
+        np.testing.assert_array_equal(again.q_goal, cmd.q_goal)
+        after = bt.step(_inputs(2.0), MotionEvent.INVALIDATED)
+        assert after.phase == cmd.phase and not np.array_equal(after.q_goal, cmd.q_goal), cls
+        newer = bt.step(_inputs(3.0), MotionEvent.INVALIDATED)  # the new goal gets its own replan
+        np.testing.assert_array_equal(newer.q_goal, after.q_goal)
     # Invalidations are bounded.
     bt, _, _ = _scripted(NavAndManipBehaviour, goal_is_free=lambda i, q: True, max_invalidations=3)
     bt.step(_inputs())

@@ -101,6 +101,11 @@ class StrategyConfig:
             map has seen the target from afar only (static s0003: "every
             IK-valid ranked grasp is in collision with the map" on the first
             tick at the base) [s].
+        max_same_goal_replans: an invalidated goal that the samplers still call
+            free is replanned this many times in a row, then resampled: the
+            planner's check is the stricter one (static s0044, nav_and_manip:
+            one grasp-move goal "in collision" thirty times in a row until
+            "the map invalidated the goal too often").
     """
 
     nav_standoff: list[float] = dc.field(default_factory=lambda: [0.8, 0.7, 0.9])
@@ -110,6 +115,7 @@ class StrategyConfig:
     capmap_tries: int = 3
     replan_period: float = 1.0
     grasp_patience: float = 2.0
+    max_same_goal_replans: int = 1
 
     def __post_init__(self) -> None:
         if not self.nav_standoff or min(self.nav_standoff) <= 0:
@@ -117,6 +123,8 @@ class StrategyConfig:
         for name in ("nav_num_angles", "capmap_tries"):
             if getattr(self, name) < 1:
                 raise ValueError(f"StrategyConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if self.max_same_goal_replans < 0:
+            raise ValueError(f"StrategyConfig.max_same_goal_replans must be >= 0, got {self.max_same_goal_replans}")
         if self.grasp_patience < 0:
             raise ValueError(f"StrategyConfig.grasp_patience must be >= 0, got {self.grasp_patience}")
         if self.avoid_radius < 0 or self.replan_period <= 0:
@@ -170,6 +178,7 @@ class StrategyBehaviour(SubgoalBehaviour):
         self.strategy_config = strategy_config or StrategyConfig()
         self._stage_index = 0
         self._refund = False  # the next sample replaces an invalidated goal: no budget used
+        self._same_goal_replans = 0  # replans of the current goal after invalidations
 
     # -- inspection ---------------------------------------------------------
 
@@ -225,8 +234,9 @@ class StrategyBehaviour(SubgoalBehaviour):
         if self.phase not in (Phase.PREGRASP, Phase.OBSERVE, Phase.GRASP_MOVE):
             self._transition(inputs, self.phase, "map update during a linear or holding phase: continuing")
             return False
-        if self._goal_still_free(inputs):
+        if self._same_goal_replans < self.strategy_config.max_same_goal_replans and self._goal_still_free(inputs):
             # Replanning to the same goal: a new goal id makes the planner plan afresh.
+            self._same_goal_replans += 1
             self._set_goal(inputs, self.phase, self.q_goal, "path invalidated by the map: replanning to the same goal")
             return False
         return self._after_goal_invalid(inputs, self.stage)
@@ -265,6 +275,7 @@ class StrategyBehaviour(SubgoalBehaviour):
         return p
 
     def _issue(self, inputs: PolicyInputs, stage: Stage, p: SubgoalProposal) -> None:
+        self._same_goal_replans = 0
         if not self._refund:
             self._state.goals_issued[stage] += 1
         self._refund = False
