@@ -248,3 +248,30 @@ def test_low_brick_on_a_counter_is_grasped_from_its_pregrasp(pipeline) -> None:
     # With the spheres deciding at the grasp too, no grasp of the brick is free.
     strict = pipeline.collision_fn(points, target, pre.q_goal)
     assert not np.any(strict(grasp.q_grasp[None]))
+
+
+def test_pregrasp_proposal_is_the_pregrasp_of_its_accepted_grasp(scene) -> None:
+    """The arm goes to the pre-grasp pose of the grasp the proposal was accepted
+    for, so the grasp stage's move to its pre-grasp starts where it ends
+    (static s0014: from another candidate's pre-grasp the arm reconfigured next
+    to the soup can and swept it over). Off, the grasp stage's grasp is not the
+    one the arm was drawn for."""
+    points, target = scene
+    dense = points[np.linalg.norm(points - target, axis=1) < 0.3]
+    q0 = layout.stow_configuration(-1.5, 0.5, 0.0)
+    gap = {}
+    for aimed in (True, False):
+        moves = []
+        for seed in range(4):
+            p = SubgoalPipeline(KinematicMaps.load_or_build(), seed=seed)
+            p.config.pregrasp_at_aimed_grasp = aimed
+            pre = p.sample_pregrasp(PolicyInputs(0.0, q0, points, target, dense))
+            assert pre.success, pre.failure_reason
+            grasp = p.sample_grasp(PolicyInputs(1.0, pre.q_goal, points, target, dense))
+            assert grasp.success, grasp.failure_reason
+            moves.append(np.max(np.abs(layout.wrap_configuration(grasp.q_goal - pre.q_goal))))
+        gap[aimed] = max(moves)
+    # The largest joint motion of the grasp-move [rad]: a small correction
+    # towards the re-detected grasp, not a flip of the wrist by pi.
+    assert gap[True] < 0.3
+    assert gap[False] > 1.0

@@ -80,6 +80,15 @@ class SubgoalPipelineConfig:
     #: Otherwise the aimed grasp itself is tried if the grasp source re-checks it
     #: on the close view and it still passes (`AntipodalGraspSampler.verify`).
     aimed_grasp_match: float = 0.03
+    #: With the candidates' pre-grasp poses as end-effector poses (a dense
+    #: target cloud), a pre-grasp sample accepts first the grasp whose
+    #: pre-grasp pose its arm was drawn at; when another grasp is accepted, the
+    #: proposal puts the arm at that grasp's pre-grasp pose instead (same base
+    #: and torso; if the target stays visible from there). Either way the
+    #: grasp-move starts where it ends. Otherwise the arm reconfigured next to the target and, starting
+    #: with the gripper around it, swept the soup can over (static s0014: 1.3 m
+    #: of gripper travel from 8 cm away).
+    pregrasp_at_aimed_grasp: bool = True
     #: Enclosure test: rays from the target, blocked by a point within
     #: ``enclosure_ray_radius`` of the ray between ``enclosure_min_distance``
     #: (beyond the target object's own surface) and ``enclosure_range``.
@@ -276,6 +285,7 @@ class SubgoalPipeline:
         costmap = BaseCostmap.from_points(p_WM, self.config.pregrasp.costmap,
                                           include_xy=np.stack([p_WT[:2], q[:2]]), robot_xy=q[:2])
         ee_poses, accept = None, None
+        aimed_pregrasp: list = [None]  # (accepted sample, its grasp's pre-grasp configuration)
         is_free = self.collision_fn(p_WM, p_WT, q)  # its crop covers the target's surroundings
         grasp_is_free = self.collision_fn(p_WM, p_WT, q, grasp=True)
         if self.config.pregrasp_from_grasps:
@@ -288,10 +298,21 @@ class SubgoalPipeline:
                     ee_poses = pregrasp_poses(candidates.X_WG, self.config.ranking.pregrasp_offset)
 
                 def accept(q_pre: np.ndarray) -> bool:
-                    goal = self._grasp_goal(candidates, q_pre, p_WM, p_WT, is_free=is_free,
-                                            grasp_is_free=grasp_is_free)
+                    # The grasp whose pre-grasp pose the arm was sampled at comes first.
+                    goal = None
+                    if ee_poses is not None and self.config.pregrasp_at_aimed_grasp:
+                        X_WE = FetchKinematics.instance().gripper_pose(q_pre)
+                        d = pose_distance(ee_poses, X_WE[None], self.config.ranking.rotation_weight)
+                        own = int(np.argmin(d))
+                        if d[own] <= self.config.aimed_grasp_match:
+                            goal = self._grasp_goal(candidates.subset([own]), q_pre, p_WM, p_WT, capability=False,
+                                                    is_free=is_free, grasp_is_free=grasp_is_free)
+                    if goal is None or not goal.success:
+                        goal = self._grasp_goal(candidates, q_pre, p_WM, p_WT, is_free=is_free,
+                                                grasp_is_free=grasp_is_free)
                     if goal.success:
                         self._aimed_grasp = (q_pre, goal.X_WG, float(candidates.width[goal.candidate_index]))
+                        aimed_pregrasp[0] = (q_pre, goal.q_pregrasp)
                     return goal.success
 
         result = self.pregrasp.sample(p_WM, p_WT, q, is_free, self.rng, costmap=costmap,
@@ -299,6 +320,12 @@ class SubgoalPipeline:
         if not result.success:
             category = FailureCategory.REACHABILITY if result.funnel["ik"] == 0 else FailureCategory.SUBGOAL
             return SubgoalProposal.failure(result.failure_reason, category)
+        if self.config.pregrasp_at_aimed_grasp and ee_poses is not None and aimed_pregrasp[0] is not None:
+            sample, q_aimed = aimed_pregrasp[0]
+            if np.allclose(sample, result.q):
+                visible, head = self.visibility.check(q_aimed[None], p_WT)
+                if visible[0]:
+                    return SubgoalProposal(True, q_aimed, head=head[0])
         return SubgoalProposal(True, result.q, head=result.head)
 
     def sample_observe(self, inputs: PolicyInputs) -> SubgoalProposal:
