@@ -39,3 +39,14 @@ def test_bad_values_name_the_field() -> None:
     p = yaml_load_typed(schema=SubgoalPipelineConfig, data="pregrasp: {base_radius: [1.0, 0.5]}")
     with pytest.raises(ValueError, match="base_radius"):
         p.pregrasp.__post_init__()
+
+
+def test_the_pregrasp_leaves_the_torso_room_for_the_whole_lift() -> None:
+    from vamg_drake.policy.behaviour_tree import BehaviourConfig
+    from vamg_drake.policy.pregrasp_sampler import PregraspConfig
+    from vamg_drake.world.episode_monitor import EpisodeMonitorConfig
+
+    lift = BehaviourConfig().lift_height
+    assert PregraspConfig().lift_headroom >= lift
+    # The commanded lift clears the success height with room for the object to settle in the fingers.
+    assert lift >= EpisodeMonitorConfig().lift_height + 0.03

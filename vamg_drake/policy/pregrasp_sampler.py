@@ -211,7 +211,7 @@ class PregraspConfig:
     #: Torso travel left free above the pre-grasp's torso [m]: the grasp keeps
     #: the torso and lifts the object with it (`BehaviourConfig.lift_height`);
     #: a torso near its top lifted the object only 8 cm.
-    lift_headroom: float = 0.12
+    lift_headroom: float = 0.15
 
     def __post_init__(self) -> None:
         if self.num_bases < 1 or self.samples_per_base < 1:
