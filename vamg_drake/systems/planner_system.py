@@ -351,9 +351,10 @@ class MotionSupervisor:
         last = linear_trajectory(path.q[-1], q_goal, path.times[-1], self.config.linear_speed_fraction)
         entry_index = path.q.shape[0] - 1
         # The entry is a stop for the tracker: the straight approach is only
-        # straight if the robot is at its entry before it starts (static
-        # s0014: the look-ahead cut from the plan to the goal and the fingers
-        # swept into the soup can from the side at 0.9 m/s).
+        # straight if the robot is at its entry before it starts. The
+        # look-ahead cuts a turn that is no corner (under `corner_angle`): by
+        # 0.06 rad on a 45-degree arm turn (tests/test_tracker.py), which puts
+        # the fingers a few cm off the approach line, beside the target.
         joined = TimedTrajectory(np.concatenate([path.times, last.times[1:]]), np.concatenate([path.q, last.q[1:]]),
                                  stops=(*path.stops, entry_index))
         return dc.replace(to_entry, trajectory=joined), entry_index, entry[1]
