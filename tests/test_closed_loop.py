@@ -39,8 +39,9 @@ def test_full_system_grasps_and_lifts_the_target(tmp_path):
     result = run_episode(_near_table_scenario(), DiagramConfig(), out_dir=tmp_path, record=False, progress=False)
     assert result.status == SUCCESS, (result.status, result.kind, result.detail, result.phases)
     phases = [p[1] for p in result.phases]
-    # The grasp was executed as the paper's sequence, in order.
-    order = [phases.index(p) for p in ("grasp_move", "grasp_approach", "grasp_close", "grasp_lift", "succeeded")]
+    # The grasp was executed as the paper's sequence, in order (the monitor may
+    # end the episode, object 10 cm up and held 2 s, before the 15 cm lift ends).
+    order = [phases.index(p) for p in ("grasp_move", "grasp_approach", "grasp_close", "grasp_lift")]
     assert order == sorted(order)
     for module in ("map_update", "gaze", "planner", "grasp_candidates", "subgoal_grasp"):
         assert result.timings[module]["count"] > 0, module
