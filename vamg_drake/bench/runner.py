@@ -128,7 +128,7 @@ def _record(spec: EpisodeSpec, status: str, wall: float, result: dict | None = N
         sim_time=float(result.get("sim_time", 0.0) or 0.0), wall_time=wall,
         path_length=float(result.get("path_length", 0.0) or 0.0), shortest_path=spec.shortest_path,
         timings=result.get("timings", {}) or {}, phases=result.get("phases", []) or [], error=error,
-        episode_dir=f"{EPISODES_DIR}/{Path(spec.episode_dir).name}" if spec.episode_dir else "",
+        episode_dir=f"{EPISODES_DIR}/{episode_dir_name(spec.key)}" if spec.episode_dir else "",
     )
 
 

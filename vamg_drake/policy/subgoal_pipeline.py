@@ -85,9 +85,9 @@ class SubgoalPipelineConfig:
     #: pre-grasp pose its arm was drawn at; when another grasp is accepted, the
     #: proposal puts the arm at that grasp's pre-grasp pose instead (same base
     #: and torso; if the target stays visible from there). Either way the
-    #: grasp-move starts where it ends. Otherwise the arm reconfigured next to the target and, starting
-    #: with the gripper around it, swept the soup can over (static s0014: 1.3 m
-    #: of gripper travel from 8 cm away).
+    #: grasp-move starts where it ends. Otherwise the arm reconfigured next to
+    #: the target and, starting with the gripper around it, swept the soup can
+    #: over (static s0014: 1.3 m of gripper travel from 8 cm away).
     pregrasp_at_aimed_grasp: bool = True
     #: Enclosure test: rays from the target, blocked by a point within
     #: ``enclosure_ray_radius`` of the ray between ``enclosure_min_distance``
@@ -212,9 +212,8 @@ class SubgoalPipeline:
         goal, aimed = None, self._aimed_grasp
         if aimed is not None and np.linalg.norm(aimed[0][:2] - q[:2]) <= self.config.aimed_grasp_tolerance:
             q_aimed, X_aimed, width_aimed = aimed
-            d = pose_distance(candidates.X_WG, X_aimed[None], self.config.ranking.rotation_weight)
-            match = int(np.argmin(d))
-            if d[match] <= self.config.aimed_grasp_match:
+            match = self._matching_pose(candidates.X_WG, X_aimed)
+            if match is not None:
                 goal = self._grasp_goal(candidates.subset([match]), q, p_WM, p_WT, capability=False)
             elif self._still_valid(inputs, p_WM, p_WT, X_aimed, width_aimed):
                 kept = GraspCandidates(X_aimed[None], np.ones(1), np.array([width_aimed]))
@@ -226,6 +225,13 @@ class SubgoalPipeline:
             return SubgoalProposal.failure(goal.failure_reason, category)
         _, head = self.visibility.check(goal.q_pregrasp[None], p_WT)
         return SubgoalProposal(True, goal.q_pregrasp, goal.q_grasp, head[0])
+
+    def _matching_pose(self, X_WP: np.ndarray, X_WQ: np.ndarray) -> int | None:
+        """The index of the pose in X_WP (K, 4, 4) nearest to X_WQ (`pose_distance`),
+        if it lies within `aimed_grasp_match`; else None."""
+        d = pose_distance(X_WP, X_WQ[None], self.config.ranking.rotation_weight)
+        nearest = int(np.argmin(d))
+        return nearest if d[nearest] <= self.config.aimed_grasp_match else None
 
     def _still_valid(self, inputs: PolicyInputs, p_WM: np.ndarray, p_WT: np.ndarray, X_WG: np.ndarray,
                      width: float) -> bool:
@@ -285,7 +291,7 @@ class SubgoalPipeline:
         costmap = BaseCostmap.from_points(p_WM, self.config.pregrasp.costmap,
                                           include_xy=np.stack([p_WT[:2], q[:2]]), robot_xy=q[:2])
         ee_poses, accept = None, None
-        aimed_pregrasp: list = [None]  # (accepted sample, its grasp's pre-grasp configuration)
+        aimed_pregrasp = None  # (accepted sample, its grasp's pre-grasp configuration)
         is_free = self.collision_fn(p_WM, p_WT, q)  # its crop covers the target's surroundings
         grasp_is_free = self.collision_fn(p_WM, p_WT, q, grasp=True)
         if self.config.pregrasp_from_grasps:
@@ -298,21 +304,22 @@ class SubgoalPipeline:
                     ee_poses = pregrasp_poses(candidates.X_WG, self.config.ranking.pregrasp_offset)
 
                 def accept(q_pre: np.ndarray) -> bool:
+                    nonlocal aimed_pregrasp
+                    at_own_grasp = ee_poses is not None and self.config.pregrasp_at_aimed_grasp
                     # The grasp whose pre-grasp pose the arm was sampled at comes first.
+                    own = self._matching_pose(ee_poses, FetchKinematics.instance().gripper_pose(q_pre)) \
+                        if at_own_grasp else None
                     goal = None
-                    if ee_poses is not None and self.config.pregrasp_at_aimed_grasp:
-                        X_WE = FetchKinematics.instance().gripper_pose(q_pre)
-                        d = pose_distance(ee_poses, X_WE[None], self.config.ranking.rotation_weight)
-                        own = int(np.argmin(d))
-                        if d[own] <= self.config.aimed_grasp_match:
-                            goal = self._grasp_goal(candidates.subset([own]), q_pre, p_WM, p_WT, capability=False,
-                                                    is_free=is_free, grasp_is_free=grasp_is_free)
+                    if own is not None:
+                        goal = self._grasp_goal(candidates.subset([own]), q_pre, p_WM, p_WT, capability=False,
+                                                is_free=is_free, grasp_is_free=grasp_is_free)
                     if goal is None or not goal.success:
                         goal = self._grasp_goal(candidates, q_pre, p_WM, p_WT, is_free=is_free,
                                                 grasp_is_free=grasp_is_free)
                     if goal.success:
                         self._aimed_grasp = (q_pre, goal.X_WG, float(candidates.width[goal.candidate_index]))
-                        aimed_pregrasp[0] = (q_pre, goal.q_pregrasp)
+                        if at_own_grasp:
+                            aimed_pregrasp = (q_pre, goal.q_pregrasp)
                     return goal.success
 
         result = self.pregrasp.sample(p_WM, p_WT, q, is_free, self.rng, costmap=costmap,
@@ -320,8 +327,8 @@ class SubgoalPipeline:
         if not result.success:
             category = FailureCategory.REACHABILITY if result.funnel["ik"] == 0 else FailureCategory.SUBGOAL
             return SubgoalProposal.failure(result.failure_reason, category)
-        if self.config.pregrasp_at_aimed_grasp and ee_poses is not None and aimed_pregrasp[0] is not None:
-            sample, q_aimed = aimed_pregrasp[0]
+        if aimed_pregrasp is not None:
+            sample, q_aimed = aimed_pregrasp
             if np.allclose(sample, result.q):
                 visible, head = self.visibility.check(q_aimed[None], p_WT)
                 if visible[0]:
