@@ -288,7 +288,7 @@ class PointMap:
         new_W = new_W[above]
         n_self = 0
         if centers.shape[0] and new_W.shape[0]:
-            robot = _inside_any_sphere(new_W, centers, radii + c.self_filter_margin)
+            robot = inside_any_sphere(new_W, centers, radii + c.self_filter_margin)
             n_self = int(robot.sum())
             new_W = new_W[~robot]
 
@@ -427,7 +427,9 @@ def _carve_keep_mask(points, X_CW, z_meas, fx, fy, cx, cy, delta, depth_min, dep
 
 
 @numba.njit(cache=True)
-def _inside_any_sphere(points, centers, radii):
+def inside_any_sphere(points, centers, radii):
+    """(N,) bool: whether each point (N, 3) lies in any sphere (S, 3), radii (S,)
+    (boundary included), with a bounding-box early out per point."""
     n = points.shape[0]
     s = centers.shape[0]
     lo = np.empty(3)

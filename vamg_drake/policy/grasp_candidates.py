@@ -29,6 +29,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from vamg_drake.planning.collision import support_height
+from vamg_drake.perception.voxels import first_in_voxel
 from vamg_drake.robot.layout import GRIPPER_MAX_OPENING
 
 
@@ -200,9 +201,7 @@ def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
     """Keeps one point per ``voxel``-sized cell (the first in input order)."""
     if points.shape[0] == 0 or voxel <= 0:
         return points
-    keys = np.floor(points / voxel).astype(np.int64)
-    _, index = np.unique(keys, axis=0, return_index=True)
-    return points[np.sort(index)]
+    return points[first_in_voxel(points, voxel)]
 
 
 def estimate_normals(points: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:

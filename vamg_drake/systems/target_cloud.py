@@ -22,6 +22,8 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 from pydrake.systems.sensors import ImageDepth32F
 
 from vamg_drake.perception.depth_points import DepthBackProjector, validate_pose
+from vamg_drake.perception.raycast_map import inside_any_sphere
+from vamg_drake.perception.voxels import first_in_voxel
 from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics
 
@@ -56,11 +58,8 @@ class TargetCloudConfig:
 
 def merge_on_grid(points: np.ndarray, voxel: float) -> np.ndarray:
     """One point per voxel of its xyz (extra columns ride along), the newest (last) one winning."""
-    if points.shape[0] == 0:
-        return points
-    keys = np.floor(points[:, :3] / voxel).astype(np.int64)
-    _, index = np.unique(keys[::-1], axis=0, return_index=True)
-    return points[::-1][np.sort(index)][::-1]
+    newest_first = points[::-1]
+    return newest_first[first_in_voxel(newest_first, voxel)][::-1]
 
 
 def mirrored_object_points(p_WS: np.ndarray, p_WT: np.ndarray, object_radius: float,
@@ -120,9 +119,7 @@ class TargetCloud(LeafSystem):
         new = p_WS[np.linalg.norm(p_WS - p_WT, axis=1) <= cfg.radius]
         q = np.asarray(self._q_port.Eval(context), dtype=float)
         if new.shape[0] and np.all(np.isfinite(q)):
-            centers = self._spheres.world_spheres(q)
-            d = np.linalg.norm(new[:, None, :] - centers[None], axis=2) - self._spheres.radius[None]
-            new = new[np.all(d > cfg.self_margin, axis=1)]
+            new = new[~inside_any_sphere(new, self._spheres.world_spheres(q), self._spheres.radius + cfg.self_margin)]
         if new.shape[0] == 0:
             return EventStatus.Succeeded()
         t = context.get_time()

