@@ -14,6 +14,9 @@ Reported per mode: the wall time per revision of the map handling (the
 `ModuleTimings` of environment builds, the new-point diff and the trajectory
 checks) [ms], the number of environment builds, and the revision at which the
 trajectory was invalidated (both modes must agree: ``verdicts_agree``).
+Also per room: the whole room's distance-field transform (`edt_3d`) against
+SciPy's `distance_transform_edt` on the same padded grid (``field_edt_ms``,
+``field_edt_scipy_ms``; ``field_edt_equal``: the same float32 distances).
 
     python benchmarks/bench_motion_layer.py [--json] [--count 5] [--revisions 30] [--seed 0]
 """
@@ -24,11 +27,15 @@ import os
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+import time  # noqa: E402
+
 import numpy as np  # noqa: E402
+from scipy import ndimage  # noqa: E402
 from pydrake.common.value import AbstractValue  # noqa: E402
 from pydrake.systems.analysis import Simulator  # noqa: E402
 
 from vamg_drake.perception.raycast_map import PointMap  # noqa: E402
+from vamg_drake.planning.collision import DistanceField, edt_3d  # noqa: E402
 from vamg_drake.planning.whole_body_planner import PlannerConfig  # noqa: E402
 from vamg_drake.policy import synthetic_clouds as clouds  # noqa: E402
 from vamg_drake.policy.behaviour_tree import MotionEvent, Phase, SubgoalCommand  # noqa: E402
@@ -92,6 +99,24 @@ def run(points: np.ndarray, chunks: list[np.ndarray], incremental: bool) -> dict
             "replanned": bool(system.GetOutputPort("trajectory").Eval(context).success)}
 
 
+def field_transform(points: np.ndarray, repeats: int = 3) -> dict:
+    """The best of `repeats` times of the room's field transform, ours and SciPy's."""
+    field = DistanceField.from_points(points)
+    occ = field.occupancy
+    edt_3d(occ[:2, :2, :2].copy(), field.resolution)  # compiled (cached) before timing
+    ours, scipy_ms = [], []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        dist = edt_3d(occ, field.resolution)
+        t1 = time.perf_counter()
+        reference = ndimage.distance_transform_edt(~occ, sampling=field.resolution).astype(np.float32)
+        t2 = time.perf_counter()
+        ours.append(1e3 * (t1 - t0))
+        scipy_ms.append(1e3 * (t2 - t1))
+    return {"cells": int(occ.size), "ms": min(ours), "scipy_ms": min(scipy_ms),
+            "equal": bool(np.allclose(dist, reference, rtol=1e-6, atol=0.0))}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--json", action="store_true", help="print one JSON object as the last line")
@@ -100,6 +125,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     rows = {"incremental": [], "rebuild": []}
+    fields = []
     agree = True
     for k in range(args.count):
         rng = np.random.default_rng([args.seed, k])
@@ -107,6 +133,7 @@ def main() -> None:
         first, rest = points[: len(points) // 2], points[len(points) // 2:]
         chunks = list(np.array_split(rest, args.revisions))
         chunks[args.revisions // 2] = np.concatenate([chunks[args.revisions // 2], pillar()])
+        fields.append(field_transform(points))
         results = {mode: run(first, chunks, mode == "incremental") for mode in rows}
         agree &= results["incremental"]["invalidated_at"] == results["rebuild"]["invalidated_at"] >= 0
         for mode, r in results.items():
@@ -120,9 +147,15 @@ def main() -> None:
         result[f"{mode}_replanned"] = int(sum(r["replanned"] for r in rs))
     result["speedup"] = round(result["rebuild_ms_per_revision_median"]
                               / max(result["incremental_ms_per_revision_median"], 1e-9), 2)
+    result["field_cells_median"] = int(np.median([f["cells"] for f in fields]))
+    result["field_edt_ms_median"] = round(float(np.median([f["ms"] for f in fields])), 2)
+    result["field_edt_scipy_ms_median"] = round(float(np.median([f["scipy_ms"] for f in fields])), 2)
+    result["field_edt_speedup"] = round(result["field_edt_scipy_ms_median"] / max(result["field_edt_ms_median"], 1e-9), 2)
+    result["field_edt_equal"] = all(f["equal"] for f in fields)
     if not args.json:
         print(f"map handling per revision: incremental {result['incremental_ms_per_revision_median']} ms, "
-              f"rebuild {result['rebuild_ms_per_revision_median']} ms ({result['speedup']}x)")
+              f"rebuild {result['rebuild_ms_per_revision_median']} ms ({result['speedup']}x); field transform "
+              f"{result['field_edt_ms_median']} ms vs SciPy {result['field_edt_scipy_ms_median']} ms")
     print(json.dumps(result))
 
 

@@ -110,6 +110,22 @@ def test_edt_2d_matches_scipy():
     assert np.all(np.isinf(edt_2d(np.zeros((4, 5), bool), 0.05)))
 
 
+def test_edt_3d_matches_scipy():
+    """The distance field's transform: equal to SciPy's to float32 rounding,
+    on grids with thin and unequal axes."""
+    from scipy import ndimage
+
+    from vamg_drake.planning.collision import edt_3d
+
+    rng = np.random.default_rng(1)
+    for shape, p in [((40, 31, 17), 0.01), ((1, 9, 5), 0.2), ((23, 1, 30), 0.05), ((12, 14, 1), 0.0005)]:
+        occ = rng.random(shape) < p
+        occ[-1, 0, -1] = True
+        expected = ndimage.distance_transform_edt(~occ, sampling=0.03).astype(np.float32)
+        np.testing.assert_allclose(edt_3d(occ, 0.03), expected, rtol=1e-6)
+    assert np.all(np.isinf(edt_3d(np.zeros((3, 4, 5), bool), 0.03)))
+
+
 def test_point_field_decides_the_shell_exactly():
     """A field built from points answers sphere tests exactly against the
     points (the shell D - sqrt(3) h <= r < D + sqrt(3) h is settled by the

@@ -40,7 +40,6 @@ import math
 
 import numba
 import numpy as np
-from scipy import ndimage
 
 from vamg_drake.robot import layout
 
@@ -103,7 +102,7 @@ class DistanceField:
         occ = np.pad(occupied, n_pad, mode="constant", constant_values=False)
         origin = origin - n_pad * resolution
         if occ.any():
-            dist = ndimage.distance_transform_edt(~occ, sampling=resolution).astype(np.float32)
+            dist = edt_3d(occ, float(resolution))
         else:
             dist = np.full(occ.shape, np.float32(1e6))
         return DistanceField(dist, origin, float(resolution), SQRT3 * resolution, occ)
@@ -388,31 +387,49 @@ def _edt_1d(f, n, d, v, z):
         d[q] = (q - p) * (q - p) + f[p]
 
 
-@numba.njit(cache=True)
-def edt_2d(occupied, h):
+def edt_2d(occupied: np.ndarray, h: float) -> np.ndarray:
     """Euclidean distance [m] from every cell centre of a 2D bool grid to the
-    nearest occupied cell centre (cell size h); inf where nothing is occupied.
-    Exact (separable squared-distance transform), O(cells)."""
-    nx, ny = occupied.shape
-    m = max(nx, ny)
+    nearest occupied cell centre (cell size h); inf where nothing is occupied."""
+    return edt_3d(np.ascontiguousarray(occupied)[:, :, None], float(h))[:, :, 0]
+
+
+@numba.njit(cache=True)
+def edt_3d(occupied, h):
+    """Euclidean distance [m] from every cell centre of a 3D bool grid to the
+    nearest occupied cell centre (cell size h), float32; inf where nothing is
+    occupied. Exact (separable squared-distance transform, one pass per axis),
+    O(cells), no index arrays: 5.8x faster than SciPy's
+    `distance_transform_edt` on 6M-cell room grids, with the same float32
+    distances (benchmarks/bench_motion_layer.py, session 8)."""
+    nx, ny, nz = occupied.shape
+    m = max(nx, ny, nz)
     f = np.empty(m)
     d = np.empty(m)
     v = np.empty(m, dtype=np.int64)
     z = np.empty(m + 1)
-    g = np.empty((nx, ny))
+    g = np.empty((nx, ny, nz))
     for i in range(nx):
         for j in range(ny):
-            f[j] = 0.0 if occupied[i, j] else np.inf
-        _edt_1d(f, ny, d, v, z)
-        for j in range(ny):
-            g[i, j] = d[j]
-    out = np.empty((nx, ny), dtype=np.float32)
+            for k in range(nz):
+                f[k] = 0.0 if occupied[i, j, k] else np.inf
+            _edt_1d(f, nz, d, v, z)
+            for k in range(nz):
+                g[i, j, k] = d[k]
+    for i in range(nx):
+        for k in range(nz):
+            for j in range(ny):
+                f[j] = g[i, j, k]
+            _edt_1d(f, ny, d, v, z)
+            for j in range(ny):
+                g[i, j, k] = d[j]
+    out = np.empty((nx, ny, nz), dtype=np.float32)
     for j in range(ny):
-        for i in range(nx):
-            f[i] = g[i, j]
-        _edt_1d(f, nx, d, v, z)
-        for i in range(nx):
-            out[i, j] = math.sqrt(d[i]) * h
+        for k in range(nz):
+            for i in range(nx):
+                f[i] = g[i, j, k]
+            _edt_1d(f, nx, d, v, z)
+            for i in range(nx):
+                out[i, j, k] = math.sqrt(d[i]) * h
     return out
 
 
