@@ -12,7 +12,10 @@ the file is not modified) and writes ``DIR/report.md`` plus PNG plots:
 * the pre-grasp sampling-completeness curve, read from
   ``DIR/bench_subgoal.json`` (the ``--json`` last line of
   ``benchmarks/bench_subgoal.py``) when present;
-* the compute-cost breakdown per module (mean ms per call, calls per episode).
+* the compute-cost breakdown per module (mean ms per call, calls per episode);
+* against the paper: each static/dynamic row beside the paper's (appendix
+  table, `vamg_drake.bench.paper_results`), and whether the paper's success
+  rate lies in the measured 95 % Wilson interval.
 
 The functions below are what the notebook calls, so notebook and report agree.
 """
@@ -27,6 +30,7 @@ import numpy as np
 
 from vamg_drake.bench.methods import PAPER_METHODS
 from vamg_drake.bench.metrics import spl, wilson_interval
+from vamg_drake.bench.paper_results import PAPER_EPISODES, PAPER_RESULTS
 from vamg_drake.bench.results import CATEGORIES, OTHER, RESULTS_FILE, SUCCESS, category_of, load_records
 
 log = logging.getLogger(__name__)
@@ -98,6 +102,19 @@ def trigger_sweep(records: list[dict]) -> list[dict]:
                      "success_ci": tuple(100.0 * x for x in wilson_interval(s, n)),
                      "collision": 100.0 * sum(r["status"] == "collision" for r in rs) / n})
     return rows
+
+
+def paper_comparison(rows: list[dict]) -> list[dict]:
+    """The `results_table` rows that the paper also reports, each with the
+    paper's percentages (``paper``) and whether its success rate lies in the
+    row's 95 % Wilson interval (``paper_in_ci``)."""
+    out = []
+    for r in rows:
+        paper = PAPER_RESULTS.get((r["suite"], r["method"]))
+        if paper is not None:
+            lo, hi = r["success_ci"]
+            out.append({**r, "paper": paper, "paper_in_ci": lo <= paper["success"] <= hi})
+    return out
 
 
 def compute_cost(records: list[dict]) -> list[dict]:
@@ -339,6 +356,17 @@ def write_report(directory: str | Path) -> Path:
     lines += ["", f"Categories: {', '.join(CATEGORIES)}; `{OTHER}` counts any other status (harness errors, old vocabularies).",
               "Planning failures by kind: " + "; ".join(f"{r['suite']}/{r['method']}: {r['planning_kinds']}" for r in rows if r["planning_kinds"]) or "none", "",
               f"![success]({plots['success']})", "", f"![failures]({plots['failures']})", "", f"![SPL]({plots['spl']})", ""]
+    comparison = paper_comparison(rows)
+    if comparison:
+        lines += ["## Against the paper", "",
+                  f"Each cell: measured % / the paper's % ({PAPER_EPISODES} episodes per row, appendix table).", "",
+                  "| suite | method | n | " + " | ".join(CATEGORIES) + " | paper's success in our 95 % interval |",
+                  "|---|---|---:|" + "---:|" * len(CATEGORIES) + "---|"]
+        for r in comparison:
+            lines.append(f"| {r['suite']} | {r['method']} | {r['n']} | "
+                         + " | ".join(f"{r[c]:.1f} / {r['paper'][c]:.2f}" for c in CATEGORIES)
+                         + f" | {'yes' if r['paper_in_ci'] else 'no'} |")
+        lines.append("")
     lines += ["## Per-scene spread", "", "| suite | method | scenes | min | max | std |", "|---|---|---:|---:|---:|---:|"]
     for r in rows:
         lines.append(f"| {r['suite']} | {r['method']} | {r['scenes']} | {r['scene_min']:.1f} | {r['scene_max']:.1f} | {r['scene_std']:.1f} |")
