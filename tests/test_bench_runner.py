@@ -114,6 +114,28 @@ def test_crash_hang_and_exception_become_recorded_errors(smoke_root, tmp_path):
     assert len(load_records(tmp_path)) == 2
 
 
+def test_the_sweep_prepares_the_episode_caches_once_before_its_episodes(smoke_root, tmp_path, monkeypatch):
+    from vamg_drake.bench.runner import prepare_episode_caches
+    from vamg_drake.policy.kinematic_maps import KinematicMaps
+
+    suite = materialize_suite(SUITES["smoke"], smoke_root, progress=False)
+    specs = episode_specs(suite, load_methods(["scripted"]), 1)
+    calls = []
+    run_sweep(specs, tmp_path, episode_fn=bench_faults.raising_episode, progress=False, workers=2,
+              prepare=lambda: calls.append(len(load_records(tmp_path)) if (tmp_path / "results.jsonl").exists() else 0))
+    assert calls == [0]  # once, before any episode was recorded
+    run_sweep(specs, tmp_path, episode_fn=bench_faults.raising_episode, progress=False, resume=True,
+              prepare=lambda: calls.append("again"))
+    assert calls == [0]  # nothing left to run: nothing to prepare
+    # The kinematic maps are loaded (or built) for the subgoal policies only.
+    loads = []
+    monkeypatch.setattr(KinematicMaps, "load_or_build", staticmethod(lambda *a, **k: loads.append(1)))
+    prepare_episode_caches(load_methods(["scripted"]))
+    assert loads == []
+    prepare_episode_caches(load_methods(["scripted", "full", "nav_and_manip"]))
+    assert loads == [1]
+
+
 def test_bad_input_gets_clear_messages(smoke_root, tmp_path):
     out = _out_with_suite(smoke_root, tmp_path / "run")
     with pytest.raises(SystemExit, match=r"unknown method 'nope' \(known: .*full"):

@@ -143,6 +143,32 @@ def test_missing_maps_are_built_on_demand(tmp_path, capsys) -> None:
     np.testing.assert_array_equal(again.torso_height.best_bin, maps.torso_height.best_bin)
 
 
+def test_a_save_interrupted_midway_leaves_no_partial_file(tmp_path, monkeypatch) -> None:
+    """Two benchmark workers may build the same maps at once and a third may
+    load them meanwhile: every file appears whole (renamed into place) or not
+    at all, so an interrupted save is a missing map (rebuilt), not a corrupt one."""
+    config = KinematicMapsConfig(reach_samples=20_000, torso_samples=20_000)
+    maps = KinematicMaps.build(config, progress=False)
+    folder = tmp_path / "maps"
+    real_savez = np.savez_compressed
+
+    def savez_then_crash(path, **arrays):
+        real_savez(path, **arrays)
+        if "best_bin" in arrays:  # the second file: written, then the process dies
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(np, "savez_compressed", savez_then_crash)
+    with pytest.raises(KeyboardInterrupt):
+        maps.save(folder)
+    monkeypatch.undo()
+    assert sorted(p.name for p in folder.iterdir()) == ["reachability.npz"]
+    with pytest.raises(FileNotFoundError, match="torso_height.npz"):
+        KinematicMaps.load(folder)
+    maps.save(folder)
+    assert sorted(p.name for p in folder.iterdir()) == ["meta.json", "reachability.npz", "torso_height.npz"]
+    np.testing.assert_array_equal(KinematicMaps.load(folder).torso_height.best_bin, maps.torso_height.best_bin)
+
+
 def test_maps_config_validation() -> None:
     with pytest.raises(ValueError, match="reach_samples"):
         KinematicMapsConfig(reach_samples=0)

@@ -94,7 +94,7 @@ def _cmd_scenario_generate(args) -> int:
 
 def _cmd_bench(args) -> int:
     from vamg_drake.bench.methods import MethodError, load_methods
-    from vamg_drake.bench.runner import episode_specs, run_sweep
+    from vamg_drake.bench.runner import episode_specs, prepare_episode_caches, run_sweep
     from vamg_drake.bench.suites import SuiteError, materialize_suite, suite_config
 
     try:
@@ -108,7 +108,8 @@ def _cmd_bench(args) -> int:
         specs = episode_specs(suite, methods, args.seeds)
         records = run_sweep(specs, args.out, workers=args.workers, backend=args.backend, resume=args.resume,
                             wall_limit=args.wall_limit, progress=not args.quiet, ray_address=args.ray_address,
-                            keep_episodes=not args.no_episode_logs)
+                            keep_episodes=not args.no_episode_logs,
+                            prepare=lambda: prepare_episode_caches(methods))
     except (SuiteError, FileExistsError, ValueError, RuntimeError) as e:
         raise SystemExit(f"vamg bench: {e}") from None
     print(json.dumps({"suite": config.name, "scenarios": len(suite.scenarios), "excluded": len(suite.excluded),

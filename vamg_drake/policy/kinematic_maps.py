@@ -426,23 +426,35 @@ class KinematicMaps:
         return Path(cache_dir or default_cache_dir()) / f"fetch-{model_hash()}-{config.digest()}-v{FORMAT_VERSION}"
 
     def save(self, folder: Path) -> None:
+        """Writes the maps into `folder`, each file atomically (a temporary
+        file renamed into place, meta.json last): processes that build the
+        same maps at once, or a reader meanwhile, never see a partial file."""
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         r, t = self.reachability, self.torso_height
+        tag = f"{os.getpid()}.tmp"
+
+        def replace_into_place(name: str, write) -> None:
+            tmp = folder / f"{Path(name).stem}.{tag}{Path(name).suffix}"
+            try:
+                write(tmp)
+                os.replace(tmp, folder / name)
+            finally:
+                tmp.unlink(missing_ok=True)
+
         # Sorted keys fit in uint32 (checked by the config); their deltas compress well.
-        np.savez_compressed(
-            folder / "reachability.npz",
+        replace_into_place("reachability.npz", lambda path: np.savez_compressed(
+            path,
             key_deltas=np.diff(r.keys, prepend=0).astype(np.uint32),
             count=np.minimum(r.count, np.iinfo(np.uint16).max).astype(np.uint16),
             manipulability=r.manipulability.astype(np.float16),
             box_lower=r.box_lower, resolution=r.resolution, shape=np.asarray(r.shape),
-        )
-        np.savez_compressed(
-            folder / "torso_height.npz",
-            best_bin=t.best_bin, count=t.count, box_lower=t.box_lower,
+        ))
+        replace_into_place("torso_height.npz", lambda path: np.savez_compressed(
+            path, best_bin=t.best_bin, count=t.count, box_lower=t.box_lower,
             resolution=t.resolution, torso_bin=t.torso_bin,
-        )
-        (folder / "meta.json").write_text(json.dumps(self.metadata, indent=2))
+        ))
+        replace_into_place("meta.json", lambda path: path.write_text(json.dumps(self.metadata, indent=2)))
 
     @staticmethod
     def load(folder: Path) -> "KinematicMaps":
