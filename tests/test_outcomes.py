@@ -32,10 +32,18 @@ def test_policy_failure_categories(failure, status, kind):
     assert outcome.detail == "no reachable base pose" and outcome.status in CATEGORIES
 
 
-def test_planner_exception_is_a_planning_failure():
+def test_planner_exception_is_an_error_not_a_planning_failure():
+    traceback = "Traceback (most recent call last):\n  File \"x.py\", line 1\nRuntimeError: boom"
     outcome = EpisodeJudge(0.8, 60.0).update(1.0, [], 0.8, False,
-                                             PolicyReport("pre_grasp", planner_error="RuntimeError: boom"))
-    assert (outcome.status, outcome.kind) == (PLANNING, "exception") and "boom" in outcome.detail
+                                             PolicyReport("pre_grasp", planner_error=traceback))
+    assert outcome.status == "error" and outcome.status not in CATEGORIES
+    assert outcome.detail == "planner raised: RuntimeError: boom" and outcome.error == traceback
+
+
+def test_policy_error_failure_is_an_error_with_its_traceback():
+    judge = EpisodeJudge(0.8, 60.0)
+    outcome = judge.update(0.05, [], 0.8, False, PolicyReport("failed", "error", "Traceback ...\nKeyError: 'x'"))
+    assert outcome.status == "error" and outcome.detail == "KeyError: 'x'" and "Traceback" in outcome.error
 
 
 def test_lift_done_but_not_held_is_a_grasp_failure():

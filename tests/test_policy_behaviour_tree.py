@@ -178,3 +178,16 @@ def test_sampler_exception_is_a_recorded_failure() -> None:
 def test_config_validation() -> None:
     with pytest.raises(ValueError, match="max_total_failures"):
         BehaviourConfig(max_total_failures=-1)
+
+
+def test_a_raising_sampler_ends_the_episode_as_an_error_with_its_traceback() -> None:
+    """A sampler bug is an error, not a subgoal (planning) failure, even when
+    another stage could still produce a goal."""
+
+    def broken(inputs: PolicyInputs) -> SubgoalProposal:
+        raise ZeroDivisionError("injected sampler fault")
+
+    samplers = SubgoalSamplers(broken, ScriptedSampler("pregrasp", [True]), ScriptedSampler("observe", [True]))
+    cmd = SubgoalBehaviour(samplers, BehaviourConfig()).step(_inputs())
+    assert cmd.phase == Phase.FAILED and cmd.failure == FailureCategory.ERROR and cmd.motion == "hold"
+    assert "Traceback" in cmd.reason and "ZeroDivisionError: injected sampler fault" in cmd.reason

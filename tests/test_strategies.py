@@ -460,3 +460,16 @@ def test_every_method_builds_and_steps_one_second(name: str) -> None:
     assert ed.config.gaze.variant == apply_strategy_defaults(method.config).gaze.variant
     goal = ed.policy.GetOutputPort("goal").Eval(ed.policy.GetMyContextFromRoot(sim.get_context()))
     assert goal.goal_id > 0 and goal.phase != Phase.FAILED, behaviour.history
+
+
+def test_a_raising_sampler_is_an_error_in_every_strategy():
+    def broken(inputs):
+        raise ZeroDivisionError("injected sampler fault")
+
+    for cls in (DirectGraspingBehaviour, NavAndManipBehaviour, CapmapPlacementBehaviour,
+                ClosedLoopReplanningBehaviour):
+        bt, samplers, _ = _scripted(cls)
+        samplers.grasp = samplers.navigate = samplers.observe = broken
+        cmd = bt.step(_inputs())
+        assert cmd.phase == Phase.FAILED and cmd.failure == FailureCategory.ERROR, cls
+        assert "ZeroDivisionError: injected sampler fault" in cmd.reason, cls

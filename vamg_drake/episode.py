@@ -1,8 +1,16 @@
 """Running one episode headless: simulate, judge, and write the results.
 
+Everything from building the diagram to writing the outputs runs inside
+one recorded-error path: an exception anywhere in it (a Drake assertion
+included, which arrives as ``SystemExit``) ends the episode with status
+``error`` and its traceback, and ``episode.json`` is still written.
+
 `run_episode` writes into its output directory:
 * `episode.json` — outcome category (and planning kind), the phase timeline,
-  sim and wall time, base path length, per-module timings;
+  sim and wall time, base path length, per-module timings, the provenance
+  (code and Drake versions, seed, resolved config) and, for status
+  ``error``, the traceback; written atomically, paths relative to the
+  output directory;
 * `episode.log` — the systems' log (planner failures with tracebacks, phases);
 * `replay.html` — a self-contained Meshcat recording (open it in a browser);
 * `topdown.png` — the room, furniture, target and the robot's path.
@@ -20,6 +28,7 @@ from pydrake.systems.analysis import Simulator
 from tqdm import tqdm
 
 from vamg_drake.diagram import DiagramConfig, build_diagram
+from vamg_drake.provenance import atomic_write_text, provenance
 from vamg_drake.world.episode_monitor import PLANNING, EpisodeOutcome
 from vamg_drake.world.scenario import Scenario
 from vamg_drake.world.topdown import plot_topdown
@@ -46,10 +55,15 @@ class EpisodeResult:
     timings: dict = dc.field(default_factory=dict)
     #: [[time, phase, reason], ...] from the subgoal policy.
     phases: list = dc.field(default_factory=list)
+    #: For status ERROR: the traceback of the exception that ended the episode.
+    error: str = ""
+    #: Output files, relative to the output directory.
     outputs: dict = dc.field(default_factory=dict)
+    #: `vamg_drake.provenance.provenance` of this episode.
+    provenance: dict = dc.field(default_factory=dict)
 
     def to_json(self) -> str:
-        return json.dumps(dc.asdict(self), indent=2)
+        return json.dumps(dc.asdict(self), indent=2, default=str)
 
 
 def _start_meshcat():
@@ -62,8 +76,10 @@ def _start_meshcat():
         return None
 
 
-#: Status of an episode whose simulation raised (the traceback is in episode.log).
+#: Status of an episode that raised (the traceback is in `EpisodeResult.error` and episode.log).
 ERROR = "error"
+#: What a crash inside the episode may arrive as: a Drake assertion is a SystemExit.
+_EPISODE_ERRORS = (Exception, SystemExit)
 
 
 def run_episode(
@@ -88,12 +104,39 @@ def run_episode(
         previous_level = root.level
         root.setLevel(min(previous_level, logging.INFO) if previous_level else logging.INFO)
     try:
-        return _run(scenario, config, out, record, progress, chunk)
+        return _run_recorded(scenario, config, out, record, progress, chunk)
     finally:
         if handler is not None:
             logging.getLogger().removeHandler(handler)
             logging.getLogger().setLevel(previous_level)
             handler.close()
+
+
+def _error_result(scenario: Scenario, config: DiagramConfig, e: BaseException, tb: str,
+                  wall: float) -> EpisodeResult:
+    return EpisodeResult(
+        scenario=scenario.name, seed=scenario.seed, policy=config.policy, status=ERROR,
+        detail=f"{type(e).__name__}: {e}",
+        method=config.method if config.policy == "full" else config.policy, wall_time=wall, error=tb,
+    )
+
+
+def _run_recorded(scenario: Scenario, config: DiagramConfig, out: Path | None, record: bool, progress: bool,
+                  chunk: float) -> EpisodeResult:
+    """`_run` with every exception turned into an ERROR result whose episode.json is still written."""
+    wall0 = time.perf_counter()
+    try:
+        result = _run(scenario, config, out, record, progress, chunk)
+    except _EPISODE_ERRORS as e:  # noqa: BLE001 - a crash is a recorded outcome, not a lost episode
+        tb = traceback.format_exc()
+        log.error("episode %s: raised:\n%s", scenario.name, tb)
+        result = _error_result(scenario, config, e, tb, time.perf_counter() - wall0)
+    result.provenance = provenance(config, seed={"scenario": scenario.seed, "config": config.seed})
+    if out:
+        result.outputs.setdefault("log", "episode.log")
+        result.outputs["episode"] = "episode.json"
+        atomic_write_text(out / "episode.json", result.to_json())
+    return result
 
 
 def _run(scenario: Scenario, config: DiagramConfig, out: Path | None, record: bool, progress: bool,
@@ -129,10 +172,10 @@ def _run(scenario: Scenario, config: DiagramConfig, out: Path | None, record: bo
                 bar.set_postfix_str(ed.policy.GetOutputPort("phase").Eval(ed.policy.GetMyContextFromRoot(context)))
             if outcome.done or status.reason() == status.ReturnReason.kReachedTerminationCondition:
                 break
-    except Exception as e:  # noqa: BLE001 - a crash is a recorded outcome, not a lost episode
-        log.error("episode %s: simulation raised at t=%.2f:\n%s", scenario.name, context.get_time(),
-                  traceback.format_exc())
-        outcome = EpisodeOutcome(ERROR, context.get_time(), f"{type(e).__name__}: {e}")
+    except _EPISODE_ERRORS as e:  # noqa: BLE001 - a crash is a recorded outcome, not a lost episode
+        error = traceback.format_exc()
+        log.error("episode %s: simulation raised at t=%.2f:\n%s", scenario.name, context.get_time(), error)
+        outcome = EpisodeOutcome(ERROR, context.get_time(), f"{type(e).__name__}: {e}", error=error)
     bar.close()
     wall = time.perf_counter() - wall0
     if not outcome.done:
@@ -158,21 +201,18 @@ def _run(scenario: Scenario, config: DiagramConfig, out: Path | None, record: bo
         depth_frames=ed.timings.summary().get("depth_render", {}).get("count", 0),
         timings=ed.timings.summary(),
         phases=phases,
+        error=outcome.error,
     )
     log.info("episode %s: %s%s at %.1f s (%s)", scenario.name, outcome.status,
              f"/{outcome.kind}" if outcome.kind else "", outcome.time, outcome.detail)
     if out:
-        topdown = out / "topdown.png"
         title = f"{scenario.name}: {outcome.status}{'/' + outcome.kind if outcome.kind else ''} at {outcome.time:.1f} s"
-        plot_topdown(scenario, path, topdown, title=title)
-        result.outputs["topdown"] = str(topdown)
+        plot_topdown(scenario, path, out / "topdown.png", title=title)
+        result.outputs["topdown"] = "topdown.png"
         if ed.visualizer is not None and meshcat is not None:
             ed.visualizer.StopRecording()
             ed.visualizer.PublishRecording()
-            replay = out / "replay.html"
-            replay.write_text(meshcat.StaticHtml())
-            result.outputs["replay"] = str(replay)
-        result.outputs["log"] = str(out / "episode.log")
-        (out / "episode.json").write_text(result.to_json())
-        result.outputs["episode"] = str(out / "episode.json")
+            atomic_write_text(out / "replay.html", meshcat.StaticHtml())
+            result.outputs["replay"] = "replay.html"
+        result.outputs["log"] = "episode.log"
     return result

@@ -30,6 +30,7 @@ exhausted or fails to sample, Fail ends the episode with a category.
 
 import dataclasses as dc
 import enum
+import traceback
 from typing import Callable
 
 import numpy as np
@@ -72,6 +73,9 @@ class FailureCategory(enum.Enum):
     PLANNING = "planning"
     SUBGOAL = "subgoal"
     IK = "ik"
+    #: A sampler raised: a bug, recorded as the episode status "error" with
+    #: its traceback, never as one of the paper's categories.
+    ERROR = "error"
 
 
 class MotionEvent(enum.Enum):
@@ -206,6 +210,8 @@ class _State:
     grasp_blocked_at: np.ndarray | None = None
     failure: FailureCategory = FailureCategory.NONE
     failure_reason: str = ""
+    #: The traceback of a sampler that raised ("" if none did); ends the episode as ERROR.
+    error: str = ""
 
 
 class StageAllowed(py_trees.behaviour.Behaviour):
@@ -239,9 +245,10 @@ class GenerateGoal(py_trees.behaviour.Behaviour):
         state = self.owner._state
         try:
             proposal = self.sampler(state.inputs)
-        except Exception as e:  # noqa: BLE001 - a sampler bug must not crash the episode
+        except Exception as e:  # noqa: BLE001 - a sampler bug ends the episode as a recorded error
+            state.error = state.error or f"{self.stage.value} sampler raised:\n{traceback.format_exc()}"
             proposal = SubgoalProposal.failure(f"{self.stage.value} sampler raised {type(e).__name__}: {e}",
-                                               FailureCategory.SUBGOAL)
+                                               FailureCategory.ERROR)
         if proposal.success:
             state.proposal, state.proposal_stage = proposal, self.stage
             self.feedback_message = "goal found"
@@ -339,6 +346,8 @@ class SubgoalBehaviour:
                 self._set_goal(inputs, Phase.GRASP_LIFT, self.q_lift, "gripper closed: lifting")
         if need_goal and self.phase not in TERMINAL:
             self._tick(inputs)
+        if self._state.error and self.phase != Phase.FAILED:
+            self._terminate(inputs, FailureCategory.ERROR, self._state.error)
         return self._command(inputs)
 
     def _tick(self, inputs: PolicyInputs) -> None:
@@ -458,6 +467,8 @@ class SubgoalBehaviour:
         self.history.append((float(inputs.time), phase.value, reason))
 
     def _terminate(self, inputs: PolicyInputs, category: FailureCategory, reason: str) -> None:
+        if self._state.error:  # a sampler raised: whatever else failed, the episode is an error
+            category, reason = FailureCategory.ERROR, self._state.error
         self._state.failure = category if category != FailureCategory.NONE else FailureCategory.SUBGOAL
         self._state.failure_reason = reason
         self.goal_id += 1

@@ -52,6 +52,7 @@ is used up by samples that could not be reached.
 import copy
 import dataclasses as dc
 import time
+import traceback
 from typing import TYPE_CHECKING, Callable
 
 import numpy as np
@@ -268,8 +269,9 @@ class StrategyBehaviour(SubgoalBehaviour):
                    Stage.OBSERVE: self.samplers.observe}[stage]
         try:
             p = sampler(inputs)
-        except Exception as e:  # noqa: BLE001 - a sampler bug must not crash the episode
-            p = SubgoalProposal.failure(f"{stage.value} sampler raised {type(e).__name__}: {e}", FailureCategory.SUBGOAL)
+        except Exception as e:  # noqa: BLE001 - a sampler bug ends the episode as a recorded error
+            self._state.error = self._state.error or f"{stage.value} sampler raised:\n{traceback.format_exc()}"
+            p = SubgoalProposal.failure(f"{stage.value} sampler raised {type(e).__name__}: {e}", FailureCategory.ERROR)
         if not p.success:
             self._state.last_failures[stage] = (p.failure_reason, p.category)
         return p

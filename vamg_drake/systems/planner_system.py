@@ -78,7 +78,7 @@ class PlannedTrajectory:
         plan_ms: wall time of the last planning call [ms].
         replans: how often this goal was replanned after an invalidation.
         motion: the goal's motion kind ("plan", "linear", "hold").
-        error: the exception text when the planner raised.
+        error: the traceback when the planner raised.
         retreat: the trajectory backs out along the robot's own recent path
             (the map put the start in collision); the goal is planned from its end.
         approach_index: from this waypoint on, the gripper may touch the
@@ -437,7 +437,7 @@ class MotionSupervisor:
         approach_index = -1
         try:
             if self.before_planning is not None:
-                self.before_planning()  # a bad map raises here: a recorded planning failure
+                self.before_planning()  # a bad map raises here: a recorded error
             q_goal = np.asarray(goal.q_goal, dtype=float)
             exempt = self.exempt_checker() if goal.phase in (Phase.PREGRASP, Phase.GRASP_MOVE) else None
             if (exempt is not None and goal.phase == Phase.GRASP_MOVE
@@ -455,10 +455,10 @@ class MotionSupervisor:
                     result, approach_index, distance = via
                     _log.info("motion t=%.2f: goal %d: planned to %.2f m back along the approach, then straight in",
                               t, goal.goal_id, distance)
-        except Exception as e:  # noqa: BLE001 - a planner bug becomes a recorded planning failure
+        except Exception:  # noqa: BLE001 - a planner bug ends the episode as a recorded error (the judge)
             _log.error("WholeBodyPlanner t=%.2f: planner raised on goal %d:\n%s", t, goal.goal_id, traceback.format_exc())
             return PlannedTrajectory(goal.goal_id, None, False, EXCEPTION_REASON, revision,
-                                     1e3 * (time.perf_counter() - t0), motion="plan", error=f"{type(e).__name__}: {e}")
+                                     1e3 * (time.perf_counter() - t0), motion="plan", error=traceback.format_exc())
         if self.timings is not None:
             self.timings.add("planner", result.timings["total"])
         if not result.success:

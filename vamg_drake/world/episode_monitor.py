@@ -18,8 +18,13 @@ report, and decides the outcome. The statuses are the paper's categories:
 * ``ik``, ``reachability``, ``perception``: the subgoal policy gave up for
   that reason;
 * ``planning``: the policy gave up after motion failures (kind ``timeout``),
-  no subgoal could be sampled (kind ``subgoal``), the planner raised (kind
-  ``exception``), or the episode's time limit passed (kind ``time_limit``).
+  no subgoal could be sampled (kind ``subgoal``), or the episode's time limit
+  passed (kind ``time_limit``).
+
+``error`` is not a paper category: a component raised (the planner, a
+sampler) or the simulation did. It carries the traceback
+(`EpisodeOutcome.error`) so that a bug shows as a bug instead of inflating a
+failure rate.
 
 `vamg_drake.systems.episode_monitor_system.EpisodeMonitor` is its LeafSystem.
 """
@@ -37,10 +42,12 @@ IK = "ik"
 REACHABILITY = "reachability"
 PERCEPTION = "perception"
 PLANNING = "planning"
+#: A component or the simulation raised (not one of the paper's categories).
+ERROR = "error"
 #: Every final status, in the column order of the paper's results table.
 CATEGORIES = (SUCCESS, COLLISION, GRASP, IK, REACHABILITY, PERCEPTION, PLANNING)
 #: Kinds of planning failure (`EpisodeOutcome.kind`).
-PLANNING_KINDS = ("timeout", "subgoal", "exception", "time_limit")
+PLANNING_KINDS = ("timeout", "subgoal", "time_limit")
 
 #: Policy failure category (`FailureCategory.value`) -> (status, kind).
 _POLICY_FAILURES = {
@@ -49,6 +56,7 @@ _POLICY_FAILURES = {
     "ik": (IK, ""),
     "planning": (PLANNING, "timeout"),
     "subgoal": (PLANNING, "subgoal"),
+    "error": (ERROR, ""),
 }
 
 
@@ -60,7 +68,7 @@ class PolicyReport:
         phase: the policy's phase value ("idle", "grasp_lift", "succeeded", "failed", ...).
         failure: its failure category value when failed ("reachability", ...).
         reason: its last reason.
-        planner_error: the planner's exception text, if it raised.
+        planner_error: the planner's exception (with traceback), if it raised.
     """
 
     phase: str = "idle"
@@ -114,12 +122,14 @@ class EpisodeOutcome:
         time: sim time of the verdict [s] (of the last tick while running).
         detail: human-readable detail (what collided with what, ...).
         kind: for PLANNING, one of PLANNING_KINDS.
+        error: for ERROR, the traceback of what raised.
     """
 
     status: str = RUNNING
     time: float = 0.0
     detail: str = ""
     kind: str = ""
+    error: str = ""
 
     @property
     def done(self) -> bool:
@@ -182,9 +192,12 @@ class EpisodeJudge:
 
     def _policy_verdict(self, time: float, policy: PolicyReport, lift: float) -> EpisodeOutcome | None:
         if policy.planner_error:
-            return EpisodeOutcome(PLANNING, time, f"planner raised: {policy.planner_error}", "exception")
+            return EpisodeOutcome(ERROR, time, f"planner raised: {_last_line(policy.planner_error)}",
+                                  error=policy.planner_error)
         if policy.phase == "failed":
             status, kind = _POLICY_FAILURES.get(policy.failure, (PLANNING, "subgoal"))
+            if status == ERROR:
+                return EpisodeOutcome(ERROR, time, _last_line(policy.reason), error=policy.reason)
             return EpisodeOutcome(status, time, policy.reason, kind)
         if policy.phase == "succeeded":
             if self._lift_done_at is None:
@@ -193,3 +206,9 @@ class EpisodeJudge:
                 return EpisodeOutcome(GRASP, time, f"lift finished but the target is not held up "
                                                    f"(lift {lift:.3f} m, max {self.max_lift:.3f} m)")
         return None
+
+
+def _last_line(text: str) -> str:
+    """The last non-empty line of a traceback (the exception itself)."""
+    lines = [line for line in text.strip().splitlines() if line.strip()]
+    return lines[-1].strip() if lines else text
