@@ -5,6 +5,11 @@
     vamg maps build            (kinematic maps, when the policy package provides them)
     vamg bench --suite S --methods a,b [--seeds K] --out DIR [--workers N] [--backend local|ray] [--resume]
     vamg report DIR
+
+Bad input (a file, a field, an argument) ends the command with one line per
+problem naming the file and the field, and exit status 1, never a traceback.
+`vamg run` also exits with status 1 when the episode ended in ``error`` (its
+``episode.json`` holds the traceback).
 """
 
 from __future__ import annotations
@@ -12,7 +17,10 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
+import os
 import sys
+import tempfile
 from pathlib import Path
 
 from vamg_drake.rendering_check import check_rendering_libraries
@@ -26,36 +34,63 @@ def _load_or_generate(args) -> "Scenario":  # noqa: F821
             return load_scenario(args.scenario)
         except (ScenarioError, FileNotFoundError) as e:
             raise SystemExit(f"vamg: {e}") from None
-    from vamg_drake.world.rooms import generate_scenario
+    from vamg_drake.world.rooms import RoomGeneratorConfig, generate_scenario
 
-    from vamg_drake.world.rooms import RoomGeneratorConfig
-
+    _check_seed(args.seed)
     dynamic = bool(getattr(args, "dynamic", False))
     return generate_scenario(args.seed, RoomGeneratorConfig(dynamic=dynamic))
 
 
-def _load_diagram_config(path: str | None) -> "DiagramConfig":  # noqa: F821
-    from pydrake.common.yaml import yaml_load_typed
+def _check_seed(seed: int) -> None:
+    if not 0 <= seed < 2**32:
+        raise SystemExit(f"vamg: --seed: must be in [0, 2^32), got {seed}")
 
+
+def _check_out_dir(path: str, option: str = "--out") -> Path:
+    """The output directory, created and proven writable (else one line naming it)."""
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise SystemExit(f"vamg: {option} {path}: exists and is not a directory")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out):
+            pass
+    except OSError as e:
+        raise SystemExit(f"vamg: {option} {path}: not a writable directory ({e.strerror or e})") from None
+    return out
+
+
+def _check_out_file(path: str, option: str = "--out") -> Path:
+    """An output file's path: not a directory, its folder created and writable."""
+    out = Path(path)
+    if out.is_dir():
+        raise SystemExit(f"vamg: {option} {path}: is a directory, not a file")
+    _check_out_dir(str(out.parent) if str(out.parent) else ".", option=f"{option} {path}: folder")
+    if out.exists() and not os.access(out, os.W_OK):
+        raise SystemExit(f"vamg: {option} {path}: not writable")
+    return out
+
+
+def _load_diagram_config(path: str | None) -> "DiagramConfig":  # noqa: F821
+    from vamg_drake.config_validation import InputError, load_diagram_config
     from vamg_drake.diagram import DiagramConfig
 
     if not path:
         return DiagramConfig()
     try:
-        text = Path(path).read_text()
-        return yaml_load_typed(schema=DiagramConfig, data=text, defaults=DiagramConfig())
-    except FileNotFoundError:
-        raise SystemExit(f"vamg: config file not found: {path}") from None
-    except RuntimeError as e:  # yaml_load_typed names the bad key
-        raise SystemExit(f"vamg: {path}: {e}") from None
+        return load_diagram_config(path)
+    except InputError as e:
+        raise SystemExit(f"vamg: {e}") from None
 
 
 def _cmd_run(args) -> int:
-    from vamg_drake.diagram import POLICIES, DiagramConfig
-    from vamg_drake.episode import run_episode
+    from vamg_drake.diagram import POLICIES
+    from vamg_drake.episode import ERROR, run_episode
 
     if args.policy and args.policy not in POLICIES:
         raise SystemExit(f"vamg run: unknown --policy '{args.policy}' (known: {', '.join(POLICIES)})")
+    if args.time_limit is not None and not (math.isfinite(args.time_limit) and args.time_limit > 0):
+        raise SystemExit(f"vamg run: --time-limit: must be a positive number of seconds, got {args.time_limit}")
     check_rendering_libraries()
     scenario = _load_or_generate(args)
     if args.time_limit is not None:
@@ -67,8 +102,13 @@ def _cmd_run(args) -> int:
         config.validate()
     except ValueError as e:
         raise SystemExit(f"vamg run: {e}") from None
-    result = run_episode(scenario, config, out_dir=args.out, record=not args.no_replay, progress=not args.quiet)
-    print(json.dumps({k: v for k, v in result.__dict__.items() if k not in ("timings", "phases")}))
+    out = _check_out_dir(args.out)
+    result = run_episode(scenario, config, out_dir=out, record=not args.no_replay, progress=not args.quiet)
+    print(json.dumps({k: v for k, v in result.__dict__.items() if k not in ("timings", "phases", "provenance")}))
+    if result.status == ERROR:
+        print(f"vamg run: the episode ended in error: {result.detail} (traceback in {out / 'episode.json'})",
+              file=sys.stderr)
+        return 1
     return 0
 
 
@@ -76,6 +116,8 @@ def _cmd_scenario_generate(args) -> int:
     from vamg_drake.world.rooms import generate_scenario
     from vamg_drake.world.scenario import save_scenario
 
+    _check_seed(args.seed)
+    out = _check_out_file(args.out)
     if args.replicacad:
         from vamg_drake.world.replicacad import ReplicaCadError, replicacad_scenario
 
@@ -85,8 +127,6 @@ def _cmd_scenario_generate(args) -> int:
             raise SystemExit(f"vamg scenario generate: {e}") from None
     else:
         scenario = generate_scenario(args.seed)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     save_scenario(scenario, out)
     print(f"wrote {out}: {scenario.name}, {len(scenario.furniture)} furniture, {len(scenario.objects)} objects, target {scenario.target}")
     return 0

@@ -111,7 +111,11 @@ class DiagramConfig:
     start_sweep: float = 0.0
 
     def validate(self) -> None:
-        """Raises ValueError naming the bad field."""
+        """Raises ValueError naming the bad field (every type, finiteness and
+        range problem of the whole tree, see `vamg_drake.config_validation`)."""
+        from vamg_drake.config_validation import check_diagram_config
+
+        check_diagram_config(self)
         if self.policy not in POLICIES:
             raise ValueError(f"DiagramConfig.policy: unknown policy '{self.policy}' (known: {', '.join(POLICIES)})")
         if self.strategy not in STRATEGIES:

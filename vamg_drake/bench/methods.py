@@ -16,13 +16,11 @@ scripted, scripted_slow  harness checks with the scripted driver (not paper meth
 A method may also be given as a path to a YAML file; its name is the file stem.
 """
 
-import dataclasses as dc
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
-import yaml
-from pydrake.common.yaml import yaml_load_typed
-
+from vamg_drake.config_validation import InputError, load_diagram_config, parse_yaml_mapping
 from vamg_drake.diagram import DiagramConfig
 
 METHODS_DIR = Path(__file__).parent / "methods"
@@ -42,11 +40,14 @@ class Method:
         name: recorded in the results.
         config: the diagram configuration.
         source: the YAML file it came from.
+        digest: a short hash of the file's content (part of each episode's
+            key, so that a method edited under the same name runs again).
     """
 
     name: str
     config: DiagramConfig
     source: Path
+    digest: str = ""
 
 
 def known_methods() -> list[str]:
@@ -63,25 +64,35 @@ def load_method(name: str) -> Method:
     """
     path = Path(name)
     if path.suffix in (".yaml", ".yml"):
-        if not path.is_file():
+        if not path.exists():
             raise MethodError(f"method file {path}: no such file")
     else:
         path = METHODS_DIR / f"{name}.yaml"
         if not path.is_file():
             raise MethodError(f"unknown method '{name}' (known: {', '.join(known_methods())}; or give a path to a .yaml file)")
-    text = path.read_text()
+    source = f"method '{path.stem}' ({path})"
+    if path.is_dir():
+        raise MethodError(f"{source}: is a directory, not a YAML file")
     try:
-        config = yaml_load_typed(schema=DiagramConfig, data=text, defaults=DiagramConfig())
-    except Exception as e:  # Drake raises RuntimeError / ValueError naming the field
-        message = " ".join(str(e).split())
-        fields = ", ".join(f.name for f in dc.fields(DiagramConfig))
-        raise MethodError(f"method '{path.stem}' ({path}): does not fit DiagramConfig: {message} (DiagramConfig fields: {fields})") from None
-    declared = (yaml.safe_load(text) or {}).get("method")
+        data = path.read_bytes()
+        text = data.decode("utf-8")
+    except OSError as e:
+        raise MethodError(f"{source}: cannot be read ({e.strerror or e})") from None
+    except UnicodeDecodeError:
+        raise MethodError(f"{source}: is a binary file, not YAML") from None
+    try:
+        if b"\x00" in data:
+            raise InputError([f"{source}: is a binary file, not YAML"])
+        if not text.strip():
+            raise InputError([f"{source}: is empty"])
+        declared = parse_yaml_mapping(text, source).get("method")
+        config = load_diagram_config(path, source, text)
+    except InputError as e:
+        raise MethodError(str(e)) from None
     if declared is not None and declared != path.stem:
-        raise MethodError(f"method '{path.stem}' ({path}): field 'method' says '{declared}'; it must match the file name")
-    if hasattr(config, "method"):
-        config.method = path.stem
-    return Method(path.stem, config, path)
+        raise MethodError(f"{source}: method: says '{declared}'; it must match the file name")
+    config.method = path.stem
+    return Method(path.stem, config, path, hashlib.sha256(data).hexdigest()[:10])
 
 
 def load_methods(names: list[str]) -> list[Method]:

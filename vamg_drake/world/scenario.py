@@ -20,7 +20,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
+from pydrake.common.yaml import yaml_dump_typed
+
+from vamg_drake.config_validation import InputError, load_typed_text, read_yaml_text
+from vamg_drake.provenance import atomic_write_text
 
 from vamg_drake.world.primitives import (
     WorldBox,
@@ -43,6 +46,14 @@ POLICY_PHASES = ("observe", "pre_grasp", "grasp")
 ROBOT_FOOTPRINT_RADIUS = 0.32
 #: The paper's drop-check band for an object above its support [m].
 SUPPORT_HEIGHT_BAND = (-0.05, 0.30)
+#: The largest extent [m] of any shape (a part, an obstacle): beyond it a
+#: number is a typo, and Drake's geometry would accept it.
+MAX_SHAPE_EXTENT = 20.0
+#: The fastest a moving obstacle may go [m/s] (a running person; the paper's 0.2).
+MAX_OBSTACLE_SPEED = 5.0
+#: How far [m] a furniture part may reach through the room's outline, or
+#: hover above the floor or the part beneath it, before it is an error.
+GEOMETRY_TOLERANCE = 0.03
 
 
 class ScenarioError(ValueError):
@@ -511,10 +522,9 @@ def scenario_to_yaml(scenario: Scenario) -> str:
 def scenario_from_yaml(text: str, source: str = "<string>") -> Scenario:
     """Parses and validates YAML text; ``source`` names it in errors."""
     try:
-        scenario = yaml_load_typed(schema=Scenario, data=text)
-    except Exception as e:  # Drake raises RuntimeError/ValueError, PyYAML its own.
-        message = " ".join(str(e).split())
-        raise ScenarioError([f"{source}: YAML does not match the Scenario schema: {message}"]) from e
+        scenario = load_typed_text(text, Scenario, None, source)
+    except InputError as e:  # wrong types, unknown fields, not YAML, not a mapping
+        raise ScenarioError(e.problems) from None
     validate_scenario(scenario, source)
     return scenario
 
@@ -526,15 +536,17 @@ def load_scenario(path: str | Path) -> Scenario:
         ScenarioError: naming the file and the field.
     """
     path = Path(path)
-    if not path.is_file():
-        raise ScenarioError([f"{path}: no such scenario file"])
-    return scenario_from_yaml(path.read_text(), source=path.name)
+    try:
+        text = read_yaml_text(path, path.name if path.is_file() else str(path))
+    except InputError as e:  # missing, a directory, binary, empty
+        raise ScenarioError(e.problems) from None
+    return scenario_from_yaml(text, source=path.name)
 
 
 def save_scenario(scenario: Scenario, path: str | Path) -> None:
     """Writes a scenario as YAML (validated first, so only good files are written)."""
     validate_scenario(scenario, str(path))
-    Path(path).write_text(scenario_to_yaml(scenario))
+    atomic_write_text(path, scenario_to_yaml(scenario))
 
 
 # ------------------------------------------------------------- validation
@@ -552,8 +564,12 @@ def _check_shape(shape: Shape, where: str, problems: list[str]) -> None:
     if isinstance(shape, Box):
         if not _finite_vector(shape.size, 3) or min(shape.size) <= 0:
             problems.append(f"{where}.size: needs 3 positive lengths, got {shape.size}")
-    elif not (shape.radius > 0 and shape.length > 0):
-        problems.append(f"{where}: radius and length must be positive")
+        elif max(shape.size) > MAX_SHAPE_EXTENT:
+            problems.append(f"{where}.size: {shape.size} exceeds {MAX_SHAPE_EXTENT} m")
+    elif not (math.isfinite(shape.radius) and math.isfinite(shape.length) and shape.radius > 0 and shape.length > 0):
+        problems.append(f"{where}: radius and length must be positive, got {shape.radius}, {shape.length}")
+    elif max(2 * shape.radius, shape.length) > MAX_SHAPE_EXTENT:
+        problems.append(f"{where}: radius {shape.radius}, length {shape.length} exceed {MAX_SHAPE_EXTENT} m")
 
 
 def _segments_cross(a, b, c, d) -> bool:
@@ -615,9 +631,10 @@ def validate_scenario(scenario: Scenario, source: str = "<scenario>") -> None:
     problems: list[str] = []
     if not scenario.name:
         problems.append("name: missing")
-    if not scenario.time_limit > 0:
+    if not (math.isfinite(scenario.time_limit) and scenario.time_limit > 0):
         problems.append(f"time_limit: must be positive, got {scenario.time_limit}")
     room_ok = _check_room(scenario.room, problems)
+    _check_numbers(scenario, problems)
     replicacad_ok = _check_replicacad(scenario, problems)
 
     furniture_names: set[str] = set()
@@ -645,6 +662,8 @@ def validate_scenario(scenario: Scenario, source: str = "<scenario>") -> None:
             elif part.support and (abs(part.rpy[0]) > 1e-6 or abs(part.rpy[1]) > 1e-6):
                 problems.append(f"{pw}.support: a support part must be level (roll = pitch = 0)")
 
+    if len(problems) == problems_before_furniture:
+        _check_furniture_geometry(scenario, problems, room_ok)
     furniture_ok = len(problems) == problems_before_furniture and replicacad_ok
     surfaces = {s.id: s for s in scenario.support_surfaces()} if furniture_ok else {}
     seen: set[str] = set()
@@ -720,6 +739,8 @@ def _check_replicacad(scenario: Scenario, problems: list[str]) -> bool:
 
 def _check_start(scenario: Scenario, problems: list[str]) -> None:
     start = scenario.robot_start
+    if not _finite_vector([start.x, start.y, start.yaw], 3):
+        return  # reported by _check_numbers
     p = np.array([[start.x, start.y]])
     r = ROBOT_FOOTPRINT_RADIUS
     poly = scenario.room.polygon()
@@ -745,3 +766,83 @@ def _check_start(scenario: Scenario, problems: list[str]) -> None:
             problems.append(
                 f"robot_start: footprint (r = {r} m) at ({start.x}, {start.y}) overlaps {layout.scene!r} geometry (clearance {clearance:.2f} m)"
             )
+
+
+def _check_numbers(scenario: Scenario, problems: list[str]) -> None:
+    """Finite numbers and sane ranges where a bad value would pass the other
+    checks (a NaN compares false everywhere) and break the simulation."""
+    start = scenario.robot_start
+    for name in ("x", "y", "yaw"):
+        if not math.isfinite(getattr(start, name)):
+            problems.append(f"robot_start.{name}: must be a finite number, got {getattr(start, name)}")
+    room = scenario.room
+    for name in ("wall_thickness", "wall_height"):
+        if not math.isfinite(getattr(room, name)):
+            problems.append(f"room.{name}: must be a finite number, got {getattr(room, name)}")
+    for k, door in enumerate(room.doorways):
+        if not _finite_vector([door.center, door.width], 2):
+            problems.append(f"room.doorways[{k}]: center and width must be finite numbers")
+    for i, obj in enumerate(scenario.objects):
+        if not math.isfinite(obj.support_height):
+            problems.append(f"objects[{i}].support_height: must be a finite number, got {obj.support_height}")
+    for i, event in enumerate(scenario.dynamic_events):
+        where = f"dynamic_events[{i}]"
+        if not math.isfinite(event.yaw):
+            problems.append(f"{where}.yaw: must be a finite number, got {event.yaw}")
+        if isinstance(event, MoveAlongPath):
+            if math.isfinite(event.speed) and event.speed > MAX_OBSTACLE_SPEED:
+                problems.append(f"{where}.speed: {event.speed} m/s exceeds {MAX_OBSTACLE_SPEED} m/s")
+            elif not math.isfinite(event.speed):
+                problems.append(f"{where}.speed: must be a finite number, got {event.speed}")
+            if not (math.isfinite(event.start_time) and event.start_time >= 0):
+                problems.append(f"{where}.start_time: must be a finite number >= 0, got {event.start_time}")
+        if isinstance(event, AppearAtDistance) and not math.isfinite(event.trigger_distance):
+            problems.append(f"{where}.trigger_distance: must be a finite number, got {event.trigger_distance}")
+
+
+def _check_furniture_geometry(scenario: Scenario, problems: list[str], room_ok: bool) -> None:
+    """Each piece of furniture: a finite pose, inside the room's walls, and
+    every part resting on the floor or on another part (nothing hovers)."""
+    posed = []
+    for i, furniture in enumerate(scenario.furniture):
+        pose = furniture.pose
+        bad = [n for n in ("x", "y", "yaw") if not math.isfinite(getattr(pose, n))]
+        for name in bad:
+            problems.append(f"furniture[{i}].pose.{name}: must be a finite number, got {getattr(pose, name)}")
+        if not bad:
+            posed.append((i, furniture))
+    poly = scenario.room.polygon() if room_ok else None
+    tol = GEOMETRY_TOLERANCE
+    for i, furniture in posed:
+        primitives = furniture.primitives()
+        boxes, outside = [], []
+        for prim in primitives:
+            footprint = prim.footprint()
+            z_lo, z_hi = prim.z_range()
+            boxes.append((footprint.min(axis=0), footprint.max(axis=0), z_lo, z_hi))
+            if poly is not None and scenario.replicacad is None:
+                outside.append(float(np.max(signed_distance_to_polygon(footprint, poly))))
+        if outside and max(outside) > tol:
+            worst = int(np.argmax(outside))
+            problems.append(f"furniture[{i}].pose: {furniture.name} reaches {outside[worst]:.2f} m through the "
+                            f"room's walls (part {furniture.parts[worst].name!r})")
+        grounded = {j for j, (_, _, z_lo, _) in enumerate(boxes) if z_lo <= tol}
+        changed = True
+        while changed:
+            changed = False
+            for j, (lo, hi, z_lo, z_hi) in enumerate(boxes):
+                if j in grounded:
+                    continue
+                for k in list(grounded):
+                    lo2, hi2, z_lo2, z_hi2 = boxes[k]
+                    if (np.all(lo <= hi2 + tol) and np.all(lo2 <= hi + tol)
+                            and z_lo <= z_hi2 + tol and z_lo2 <= z_hi + tol):
+                        grounded.add(j)
+                        changed = True
+                        break
+        for j, (_, _, z_lo, _) in enumerate(boxes):
+            if j not in grounded:
+                below = [boxes[k][3] for k in grounded if boxes[k][3] <= z_lo + tol]
+                gap = z_lo - max(below, default=0.0)
+                problems.append(f"furniture[{i}].parts[{j}]: {furniture.name}/{furniture.parts[j].name} floats "
+                                f"{gap:.2f} m above the floor or the part beneath it (touches no other part)")
