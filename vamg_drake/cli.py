@@ -2,6 +2,7 @@
 
     vamg run [--scenario FILE | --seed N [--dynamic]] [--config FILE] [--policy full|scripted] [--out DIR] [--time-limit S]
     vamg scenario generate --seed N --out FILE [--replicacad SCENE [--replicacad-dir DIR]]
+    vamg scenario import-tasks TASK_FILE --out DIR [--dynamic] [--tasks K]
     vamg maps build            (kinematic maps, when the policy package provides them)
     vamg bench --suite S --methods a,b [--seeds K] --out DIR [--workers N] [--backend local|ray] [--resume]
     vamg report DIR
@@ -132,6 +133,40 @@ def _cmd_scenario_generate(args) -> int:
     return 0
 
 
+def _cmd_scenario_import_tasks(args) -> int:
+    from tqdm import tqdm
+
+    from vamg_drake.world.paper_tasks import TaskFileError, import_scene, read_task_file
+    from vamg_drake.world.replicacad import ReplicaCadError
+    from vamg_drake.world.scenario import save_scenario
+
+    if args.tasks is not None and args.tasks < 1:
+        raise SystemExit(f"vamg scenario import-tasks: --tasks must be >= 1, got {args.tasks}")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise SystemExit(f"vamg scenario import-tasks: --out {out} exists and is not a directory")
+    try:
+        scenes = read_task_file(args.task_file)
+        report = []
+        count = 0
+        for scene in tqdm(scenes, desc="import scenes", disable=not sys.stderr.isatty()):
+            wanted = None if args.tasks is None else [t.index for t in scene.tasks[: args.tasks]]
+            imported = import_scene(scene, args.dynamic, args.replicacad_dir, tasks=wanted)
+            for index, scenario in imported.scenarios:
+                save_scenario(scenario, out / f"{scenario.name}.yaml")
+                count += 1
+            report.append(imported.report())
+            print(f"{scene.key}: {imported.apartment} (tasks on its receptacles: {imported.match_scores[imported.apartment]}/"
+                  f"{len(scene.tasks)}), {len(imported.scenarios)} scenarios, {len(imported.excluded)} excluded")
+    except (TaskFileError, ReplicaCadError) as e:
+        raise SystemExit(f"vamg scenario import-tasks: {e}") from None
+    tmp = out / "import.json.tmp"
+    tmp.write_text(json.dumps({"task_file": str(args.task_file), "dynamic": args.dynamic, "scenes": report}, indent=1))
+    tmp.replace(out / "import.json")
+    print(f"wrote {count} scenarios and import.json to {out}")
+    return 0
+
+
 def _cmd_bench(args) -> int:
     from vamg_drake.bench.methods import MethodError, load_methods
     from vamg_drake.bench.runner import episode_specs, prepare_episode_caches, run_sweep
@@ -139,6 +174,8 @@ def _cmd_bench(args) -> int:
 
     try:
         config = suite_config(args.suite, scenes=args.scenes, targets=args.targets)
+        if args.task_file:
+            config.task_file = args.task_file
         methods = load_methods([m.strip() for m in args.methods.split(",") if m.strip()])
     except (SuiteError, MethodError) as e:
         raise SystemExit(f"vamg bench: {e}") from None
@@ -195,9 +232,16 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("--replicacad", metavar="SCENE", help="a ReplicaCAD scene instance (e.g. apt_0) instead of a procedural room")
     gen.add_argument("--replicacad-dir", help="ReplicaCAD dataset (default: $VAMG_REPLICACAD_DIR, $MS_ASSET_DIR, ~/.maniskill/data); stored in the file")
     gen.set_defaults(func=_cmd_scenario_generate)
+    imp = scenario_sub.add_parser("import-tasks", help="import the paper authors' ReplicaCAD task file as scenario files")
+    imp.add_argument("task_file", help="the authors' grasp_benchmark.json (or a part of it)")
+    imp.add_argument("--out", required=True, help="directory for the scenario files and import.json")
+    imp.add_argument("--dynamic", action="store_true", help="add the pedestrian box and the manipulation boxes")
+    imp.add_argument("--replicacad-dir", help="ReplicaCAD dataset (default: $VAMG_REPLICACAD_DIR, $MS_ASSET_DIR, ~/.maniskill/data)")
+    imp.add_argument("--tasks", type=int, default=None, help="import only the first K tasks of each scene")
+    imp.set_defaults(func=_cmd_scenario_import_tasks)
 
     bench = sub.add_parser("bench", help="run a benchmark sweep (isolated, resumable episodes)")
-    bench.add_argument("--suite", required=True, help="smoke | static | dynamic | dynamic_moving | trigger_sweep | FILE.yaml")
+    bench.add_argument("--suite", required=True, help="smoke | static | dynamic | dynamic_moving | trigger_sweep | replicacad | paper_static | paper_dynamic | FILE.yaml")
     bench.add_argument("--methods", required=True, help="comma-separated method names or YAML files (e.g. full,velocity_agnostic)")
     bench.add_argument("--seeds", type=int, default=1, help="repetitions of every scenario (default 1)")
     bench.add_argument("--out", required=True, help="results directory (results.jsonl, suites/)")
@@ -205,6 +249,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--backend", choices=("local", "ray"), default="local")
     bench.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
     bench.add_argument("--resume", action="store_true", help="skip episodes already in DIR/results.jsonl")
+    bench.add_argument("--task-file", default=None, help="paper_static/paper_dynamic: the authors' task file (default: $VAMG_PAPER_TASKS)")
     bench.add_argument("--scenes", type=int, default=None, help="override the suite's number of scenes")
     bench.add_argument("--targets", type=int, default=None, help="override the suite's targets per scene")
     bench.add_argument("--wall-limit", type=float, default=900.0, help="per-episode wall-clock limit [s] (default 900)")

@@ -54,9 +54,12 @@ from vamg_drake.systems.timing import ModuleTimings
 from vamg_drake.systems.tracker_system import WholeBodyTracker
 from vamg_drake.world.episode_monitor import EpisodeMonitorConfig
 from vamg_drake.world.scenario import Scenario
+from vamg_drake.world.static_cloud import static_scene_points
 from vamg_drake.world.world_builder import World, WorldConfig, build_world, initial_robot_configuration
 
 POLICIES = ("full", "scripted")
+#: What the map knows at the start (DiagramConfig.prior_map).
+PRIOR_MAPS = ("none", "static")
 #: How the full system organises its subgoals (the paper's methods share the rest).
 STRATEGIES = ("subgoal_tree", "direct_grasping", "closed_loop_replanning", "nav_and_manip", "capmap_placement")
 
@@ -72,6 +75,9 @@ class DiagramConfig:
         method: the method's name, recorded in results.
         strategy: one of STRATEGIES (see `vamg_drake.bench` for the methods).
         seed: seed of the samplers and the planner.
+        prior_map: "none" (the paper's setting: the map starts empty) or
+            "static" (it starts with a point cloud of the room's static
+            geometry, as the paper authors' released runner does).
         map: the ray-cast map.
         gaze: the gaze optimizer (``variant`` selects the velocity-agnostic ablation).
         subgoal: the subgoal samplers.
@@ -92,6 +98,7 @@ class DiagramConfig:
     method: str = "full"
     strategy: str = "subgoal_tree"
     seed: int = 0
+    prior_map: str = "none"
     map: RayCastMapConfig = dc.field(default_factory=RayCastMapConfig)
     gaze: GazeConfig = dc.field(default_factory=GazeConfig)
     subgoal: SubgoalPipelineConfig = dc.field(default_factory=SubgoalPipelineConfig)
@@ -118,6 +125,8 @@ class DiagramConfig:
         check_diagram_config(self)
         if self.policy not in POLICIES:
             raise ValueError(f"DiagramConfig.policy: unknown policy '{self.policy}' (known: {', '.join(POLICIES)})")
+        if self.prior_map not in PRIOR_MAPS:
+            raise ValueError(f"DiagramConfig.prior_map: unknown prior map '{self.prior_map}' (known: {', '.join(PRIOR_MAPS)})")
         if self.strategy not in STRATEGIES:
             raise ValueError(f"DiagramConfig.strategy: unknown strategy '{self.strategy}' "
                              f"(known: {', '.join(STRATEGIES)})")
@@ -239,7 +248,11 @@ def _add_full_system(builder: DiagramBuilder, ed: EpisodeDiagram, scenario: Scen
     depth_image, X_WC = camera.depth_image_32F_output_port(), camera.body_pose_in_world_output_port()
     target = builder.AddNamedSystem("target", ConstantVectorSource(np.asarray(scenario.target_point(), float)))
 
-    point_map = builder.AddNamedSystem("raycast_map", RayCastMap(world.intrinsics, config.map, period, timings=timings))
+    prior = None
+    if config.prior_map == "static":
+        prior = static_scene_points(scenario, config.map.voxel_size, config.map.ground_height)
+    point_map = builder.AddNamedSystem("raycast_map", RayCastMap(world.intrinsics, config.map, period, timings=timings,
+                                                                 prior_points=prior))
     builder.Connect(depth_image, point_map.GetInputPort("depth_image"))
     builder.Connect(X_WC, point_map.GetInputPort("X_WC"))
     builder.Connect(q, point_map.GetInputPort("robot_configuration"))

@@ -126,7 +126,7 @@ class OracleGraspResult:
 def _hull_vertices_W(scenario: Scenario, name: str) -> np.ndarray:
     import trimesh
 
-    asset = load_ycb_asset(name)
+    asset = load_ycb_asset(scenario.object(name).ycb_model)
     obj = scenario.object(name)
     mesh = trimesh.load(str(asset.collision_path), force="mesh")
     X_WO = RigidTransform(RollPitchYaw(obj.rpy), obj.xyz)
@@ -195,7 +195,7 @@ def _simulate(scenario: Scenario, name: str, candidate: GraspCandidate, config: 
     plant.WeldFrames(plant.world_frame(), support_body.body_frame(), RigidTransform())
     if obj.support in surfaces:
         register_primitive(plant, support_body, surfaces[obj.support].primitive, RigidTransform(), (0.6, 0.5, 0.4, 1.0), config.geometry)
-    _, object_body = add_ycb_body(plant, name, config.geometry)
+    _, object_body = add_ycb_body(plant, name, config.geometry, obj.model)
     plant.SetDefaultFloatingBaseBodyPose(object_body, RigidTransform(RollPitchYaw(obj.rpy), obj.xyz))
 
     gripper = plant.AddModelInstance("oracle_gripper")

@@ -15,6 +15,13 @@ manifest with the reason) and the slot moves to the next eligible object.
 ``DIR/suites/<name>/`` once; a second call (``--resume``) reads them back,
 validating every file, and refuses a manifest built with another config.
 
+``paper_static`` and ``paper_dynamic`` are the paper authors' own ReplicaCAD
+tasks (their task file, found with ``$VAMG_PAPER_TASKS``), imported with
+``vamg_drake.world.paper_tasks``: all objects of a scene in every task, the
+authors' start, and in the dynamic suite their pedestrian box and
+manipulation boxes; ``import.json`` beside the manifest records each scene's
+apartment match and every object's settling displacement.
+
 Dynamic suites get the paper's pedestrian (trigger distance ``trigger_distances``,
 default 1.7 m) and table-top box; ``dynamic_moving`` adds an obstacle moving at
 0.2 m/s across the room; ``trigger_sweep`` runs every scenario at five trigger
@@ -24,6 +31,7 @@ distances (appendix "Obstacle Distance Analysis").
 import dataclasses as dc
 import json
 import logging
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -31,6 +39,7 @@ from pydrake.common.yaml import yaml_load_typed
 
 from vamg_drake.bench.metrics import ShortestPathConfig, shortest_base_path
 from vamg_drake.bench.oracle_grasp import OracleGraspConfig, check_graspable
+from vamg_drake.world.paper_tasks import PaperTaskConfig, TaskFileError, import_scene, read_task_file
 from vamg_drake.world.rooms import GenerationError, RoomGeneratorConfig, generate_scenario, retarget_scenario, target_candidates
 from vamg_drake.world.scenario import AppearAtDistance, Scenario, ScenarioError, load_scenario, save_scenario
 
@@ -63,6 +72,11 @@ class SuiteConfig:
             instead of the procedural generator (cycled over ``scenes``; each
             target slot is a fresh generator seed in that scene); the dataset
             is looked up with `vamg_drake.world.replicacad.find_replicacad_dir`.
+        paper_tasks: the scenarios are the paper authors' ReplicaCAD tasks
+            (``vamg_drake.world.paper_tasks``): the first ``scenes`` scenes of
+            the task file, the first ``targets_per_scene`` tasks of each.
+        task_file: the authors' task file (empty: ``$VAMG_PAPER_TASKS``).
+        paper_task_config: how the tasks are imported (``time_limit`` above overrides its own).
     """
 
     name: str = ""
@@ -78,6 +92,9 @@ class SuiteConfig:
     room: RoomGeneratorConfig = field(default_factory=RoomGeneratorConfig)
     shortest_path: ShortestPathConfig = field(default_factory=ShortestPathConfig)
     replicacad_scenes: list[str] = field(default_factory=list)
+    paper_tasks: bool = False
+    task_file: str = ""
+    paper_task_config: PaperTaskConfig = field(default_factory=PaperTaskConfig)
 
     def room_config(self) -> RoomGeneratorConfig:
         return dc.replace(self.room, dynamic=self.dynamic, moving_obstacle=self.moving_obstacle, time_limit=self.time_limit)
@@ -92,7 +109,13 @@ SUITES: dict[str, SuiteConfig] = {
     "trigger_sweep": SuiteConfig(name="trigger_sweep", dynamic=True, targets_per_scene=5, trigger_distances=[0.5, 1.0, 1.5, 2.0, 2.5]),
     "replicacad": SuiteConfig(name="replicacad", scenes=3, targets_per_scene=5,
                               replicacad_scenes=["apt_0", "v3_sc0_staging_00", "v3_sc1_staging_00"]),
+    # The paper's own benchmark: the authors' task file (20 scenes x 20 tasks).
+    "paper_static": SuiteConfig(name="paper_static", paper_tasks=True),
+    "paper_dynamic": SuiteConfig(name="paper_dynamic", paper_tasks=True, dynamic=True),
 }
+
+#: Where ``paper_static`` / ``paper_dynamic`` find the authors' task file when the suite names none.
+TASK_FILE_ENV = "VAMG_PAPER_TASKS"
 
 
 @dataclass(frozen=True)
@@ -220,6 +243,8 @@ def validate_suite_files(suite: Suite) -> None:
 
 
 def _build(config: SuiteConfig, directory: Path, progress: bool) -> Suite:
+    if config.paper_tasks:
+        return _build_paper_tasks(config, directory, progress)
     if config.replicacad_scenes:
         return _build_replicacad(config, directory, progress)
     from tqdm import tqdm
@@ -304,6 +329,75 @@ def _build_replicacad(config: SuiteConfig, directory: Path, progress: bool) -> S
             save_scenario(scenario, directory / file)
             scenarios.append(SuiteScenario(sid, scene, slot, scenario.target, file, None))
     bar.close()
+    return _write_manifest(config, directory, scenarios, excluded)
+
+
+def resolve_task_file(config: SuiteConfig) -> Path:
+    """The suite's task file: ``task_file``, else ``$VAMG_PAPER_TASKS``.
+
+    Raises:
+        SuiteError: neither is set, or the file does not exist.
+    """
+    path = config.task_file or os.environ.get(TASK_FILE_ENV, "")
+    if not path:
+        raise SuiteError(f"suite {config.name}: no task file: set {TASK_FILE_ENV}, pass --task-file, "
+                         "or set task_file in the suite file (the paper authors' grasp_benchmark.json)")
+    if not Path(path).is_file():
+        raise SuiteError(f"suite {config.name}: task file {path}: no such file")
+    return Path(path)
+
+
+def _build_paper_tasks(config: SuiteConfig, directory: Path, progress: bool) -> Suite:
+    """The authors' tasks: scene k of the file is suite scene k, task t its target slot t."""
+    from tqdm import tqdm
+
+    from vamg_drake.world.replicacad import ReplicaCadError, find_replicacad_dir
+
+    if find_replicacad_dir() is None:
+        raise SuiteError(f"suite {config.name}: no ReplicaCAD dataset found (set MS_ASSET_DIR, VAMG_REPLICACAD_DIR, "
+                         "or download it with `python -m mani_skill.utils.download_asset ReplicaCAD`)")
+    path = resolve_task_file(config)
+    try:
+        scenes = read_task_file(path)[: config.scenes]
+    except TaskFileError as e:
+        raise SuiteError(str(e)) from None
+    import_config = dc.replace(config.paper_task_config, time_limit=config.time_limit)
+    (directory / "scenarios").mkdir(parents=True, exist_ok=True)
+    scenarios: list[SuiteScenario] = []
+    excluded: list[dict] = []
+    imports: list[dict] = []
+    bar = tqdm(total=sum(min(len(s.tasks), config.targets_per_scene) for s in scenes), desc=f"suite {config.name}",
+               disable=not progress, leave=False)
+    for scene in scenes:
+        wanted = [t.index for t in scene.tasks[: config.targets_per_scene]]
+        try:
+            imported = import_scene(scene, config.dynamic, None, import_config, wanted)
+        except (TaskFileError, ReplicaCadError) as e:
+            excluded.append({"scene": scene.index, "object": None, "reason": str(e)})
+            bar.update(len(wanted))
+            continue
+        imports.append(imported.report())
+        for index, reason in imported.excluded:
+            excluded.append({"scene": scene.index, "object": scene.tasks[index].model_id, "task": index, "reason": reason})
+            bar.update(1)
+        for index, scenario in imported.scenarios:
+            bar.update(1)
+            if config.oracle:
+                result = check_graspable(scenario, scenario.target, config.oracle_config)
+                if not result.graspable:
+                    excluded.append({"scene": scene.index, "object": scenario.target, "task": index,
+                                     "reason": f"oracle grasp check: {result.reason}"})
+                    continue
+            sid = f"s{scene.index:04d}_t{index:02d}"
+            scenario.name = f"{config.name}_{sid}"
+            file = f"scenarios/{sid}.yaml"
+            save_scenario(scenario, directory / file)
+            scenarios.append(SuiteScenario(sid, scene.index, index, scenario.target, file,
+                                           shortest_base_path(scenario, config.shortest_path)))
+    bar.close()
+    tmp = directory / "import.json.tmp"
+    tmp.write_text(json.dumps({"task_file": str(path), "scenes": imports}, indent=1))
+    tmp.replace(directory / "import.json")
     return _write_manifest(config, directory, scenarios, excluded)
 
 

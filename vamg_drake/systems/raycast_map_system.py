@@ -65,10 +65,13 @@ class RayCastMap(LeafSystem):
         period: float = 0.1,
         self_filter: bool = True,
         timings: ModuleTimings | None = None,
+        prior_points: np.ndarray | None = None,
     ):
         super().__init__()
         self._intrinsics = intrinsics
         self._config = config or RayCastMapConfig()
+        #: Points every fresh map starts with (``prior_map: static``); None: an empty map.
+        self._prior = None if prior_points is None else np.ascontiguousarray(prior_points, dtype=float).reshape(-1, 3)
         self._timings = timings
         self._spheres = None
         if self_filter:
@@ -93,6 +96,8 @@ class RayCastMap(LeafSystem):
 
     def _initialize(self, context, state) -> EventStatus:
         core = PointMap(self._intrinsics, self._config)
+        if self._prior is not None:
+            core.add_points(self._prior)
         state.get_mutable_abstract_state(self._core_index).set_value(SharedPointMap(core))
         state.get_mutable_abstract_state(self._snapshot_index).set_value(core.snapshot())
         return EventStatus.Succeeded()

@@ -210,6 +210,9 @@ class ReplicaCadLayout:
         obstacles: every collision piece as a vertical-axis bounding box (no floor coverings).
         stage_visual: the stage's converted render mesh, or None if absent.
         warnings: assets that were missing but not needed.
+        covered_receptacles: level receptacles more than ``max_blocked_fraction``
+            covered (objects may rest there, e.g. in the paper's task files,
+            but generators place none there).
     """
 
     scene: str
@@ -221,6 +224,11 @@ class ReplicaCadLayout:
     obstacles: tuple[WorldBox, ...]
     stage_visual: Path | None
     warnings: tuple[str, ...] = field(default=())
+    covered_receptacles: tuple[Receptacle, ...] = field(default=())
+
+    def all_receptacles(self) -> tuple[Receptacle, ...]:
+        """Usable and covered receptacles (shelves inside cupboards, under other furniture)."""
+        return self.receptacles + self.covered_receptacles
 
     def static_shapes(self) -> list[WorldBox]:
         """Returns walls and obstacle boxes (what ``static_obstacle_shapes`` adds)."""
@@ -418,11 +426,14 @@ class _Loader:
         obstacles = self._obstacles()
         walls = self._walls(navmesh, obstacles)
         receptacles = self._receptacles()
+        usable = tuple(r for r in receptacles if r.blocked_fraction <= self.config.max_blocked_fraction)
+        covered = tuple(r for r in receptacles if r.blocked_fraction > self.config.max_blocked_fraction)
         return ReplicaCadLayout(
             scene=self.scene,
             dataset_dir=self.root,
             bodies=tuple(self.bodies),
-            receptacles=tuple(receptacles),
+            receptacles=usable,
+            covered_receptacles=covered,
             navmesh=navmesh,
             walls=tuple(walls),
             obstacles=tuple(obstacles),
@@ -646,8 +657,6 @@ class _Loader:
                 if len(hull) >= 3 and np.any(signed_distance_to_polygon(top, hull) <= 0) | np.any(signed_distance_to_polygon(hull, top) <= 0):
                     blocked.append(hull)
             fraction = _covered_fraction(top, blocked)
-            if fraction > config.max_blocked_fraction:
-                continue
             receptacles.append(Receptacle(f"{body_name}/{name}", height, top, box, tuple(blocked), fraction))
         return receptacles
 

