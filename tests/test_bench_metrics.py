@@ -104,3 +104,35 @@ def test_paper_comparison_sets_each_row_beside_the_papers():
     assert rows[("dynamic", "full")]["paper"]["collision"] == 9.75
     assert not rows[("dynamic", "nav_and_manip")]["paper_in_ci"]
     assert rows[("dynamic", "nav_and_manip")]["paper"]["planning"] == 19.50
+
+
+def test_paper_task_suites_and_prior_map_variant_compare_with_the_papers_rows():
+    from vamg_drake.bench.report import paper_comparison, results_table
+
+    records = (_records("paper_static", "full", ["success"] * 8 + ["grasp"] * 2)
+               + _records("paper_dynamic", "full_prior_map", ["success"] * 5 + ["collision"] * 5)
+               + _records("paper_static", "scripted", ["success"]))
+    rows = {(r["suite"], r["method"]): r for r in paper_comparison(results_table(records))}
+    assert set(rows) == {("paper_static", "full"), ("paper_dynamic", "full_prior_map")}
+    assert rows[("paper_static", "full")]["paper"]["success"] == 68.75
+    assert rows[("paper_dynamic", "full_prior_map")]["paper"]["success"] == 58.0
+
+
+def test_per_apartment_rates_come_from_the_suites_import_file(tmp_path):
+    import json
+
+    from vamg_drake.bench.report import apartment_of_scene, per_apartment
+
+    suite_dir = tmp_path / "suites" / "paper_static"
+    suite_dir.mkdir(parents=True)
+    (suite_dir / "import.json").write_text(json.dumps({"scenes": [{"scene": "scene_0", "apartment": "apt_2"},
+                                                                   {"scene": "scene_1", "apartment": "apt_1"}]}))
+    apartments = apartment_of_scene(tmp_path)
+    assert apartments == {("paper_static", 0): "apt_2", ("paper_static", 1): "apt_1"}
+    records = [{"suite": "paper_static", "method": "full", "scene": 0, "status": s} for s in ("success", "success", "grasp")]
+    records += [{"suite": "paper_static", "method": "full", "scene": 1, "status": "collision"}]
+    records += [{"suite": "static", "method": "full", "scene": 0, "status": "success"}]  # not a paper-task suite
+    rows = {r["apartment"]: r for r in per_apartment(records, apartments)}
+    assert set(rows) == {"apt_1", "apt_2"}
+    assert rows["apt_2"]["n"] == 3 and abs(rows["apt_2"]["success"] - 200 / 3) < 1e-9
+    assert rows["apt_1"]["collision"] == 100.0

@@ -32,3 +32,19 @@ _ROWS = {
 PAPER_RESULTS: dict[tuple[str, str], dict[str, float]] = {
     (suite, method): dict(zip(_COLUMNS, values)) for suite, rows in _ROWS.items() for method, values in rows.items()
 }
+
+#: Our suites that run the paper's own suites: its authors' task file
+#: (``paper_static``, ``paper_dynamic``) and our procedural rooms.
+SUITE_OF_PAPER = {"static": "static", "dynamic": "dynamic", "paper_static": "static", "paper_dynamic": "dynamic"}
+#: Our variants of a paper method that its row compares with (the map seeded
+#: with the static apartment, as the authors' released runner does).
+METHOD_OF_PAPER = {"full_prior_map": "full"}
+
+
+def paper_row(suite: str, method: str) -> dict[str, float] | None:
+    """The paper's percentages for our (suite, method), or None where it reports none."""
+    paper_suite = SUITE_OF_PAPER.get(suite)
+    if paper_suite is None:
+        return None
+    return PAPER_RESULTS.get((paper_suite, METHOD_OF_PAPER.get(method, method)))
+

@@ -13,7 +13,8 @@ the file is not modified) and writes ``DIR/report.md`` plus PNG plots:
   ``DIR/bench_subgoal.json`` (the ``--json`` last line of
   ``benchmarks/bench_subgoal.py``) when present;
 * the compute-cost breakdown per module (mean ms per call, calls per episode);
-* against the paper: each static/dynamic row beside the paper's (appendix
+* against the paper: each static/dynamic row (procedural rooms, or the
+  authors' tasks in `paper_static`/`paper_dynamic`) beside the paper's (appendix
   table, `vamg_drake.bench.paper_results`), and whether the paper's success
   rate lies in the measured 95 % Wilson interval.
 
@@ -30,7 +31,7 @@ import numpy as np
 
 from vamg_drake.bench.methods import PAPER_METHODS
 from vamg_drake.bench.metrics import spl, wilson_interval
-from vamg_drake.bench.paper_results import PAPER_EPISODES, PAPER_RESULTS
+from vamg_drake.bench.paper_results import PAPER_EPISODES, paper_row
 from vamg_drake.bench.results import CATEGORIES, OTHER, RESULTS_FILE, SUCCESS, category_of, load_records
 
 log = logging.getLogger(__name__)
@@ -110,11 +111,39 @@ def paper_comparison(rows: list[dict]) -> list[dict]:
     row's 95 % Wilson interval (``paper_in_ci``)."""
     out = []
     for r in rows:
-        paper = PAPER_RESULTS.get((r["suite"], r["method"]))
+        paper = paper_row(r["suite"], r["method"])
         if paper is not None:
             lo, hi = r["success_ci"]
             out.append({**r, "paper": paper, "paper_in_ci": lo <= paper["success"] <= hi})
     return out
+
+
+def apartment_of_scene(directory: str | Path) -> dict[tuple[str, int], str]:
+    """(suite, scene index) -> apartment, from the ``import.json`` of each paper-task suite under ``DIR/suites``."""
+    out = {}
+    for path in sorted(Path(directory).glob("suites/*/import.json")):
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError):
+            continue
+        for scene in data.get("scenes", []):
+            key = str(scene.get("scene", ""))
+            if key.startswith("scene_") and key[6:].isdigit():
+                out[(path.parent.name, int(key[6:]))] = str(scene.get("apartment", ""))
+    return out
+
+
+def per_apartment(records: list[dict], apartments: dict[tuple[str, int], str]) -> list[dict]:
+    """Success and collision rates per (suite, method, apartment) for episodes of paper-task suites."""
+    rows = []
+    keyed = [dict(r, apartment=apartments[(r["suite"], int(r["scene"]))]) for r in records
+             if (r.get("suite"), r.get("scene")) in apartments]
+    for (suite, method, apartment), rs in sorted(_groups(keyed, "suite", "method", "apartment").items()):
+        n = len(rs)
+        rows.append({"suite": suite, "method": method, "apartment": apartment, "n": n,
+                     "success": 100.0 * sum(r["status"] == "success" for r in rs) / n,
+                     "collision": 100.0 * sum(r["status"] == "collision" for r in rs) / n})
+    return rows
 
 
 def compute_cost(records: list[dict]) -> list[dict]:
@@ -366,6 +395,13 @@ def write_report(directory: str | Path) -> Path:
             lines.append(f"| {r['suite']} | {r['method']} | {r['n']} | "
                          + " | ".join(f"{r[c]:.1f} / {r['paper'][c]:.2f}" for c in CATEGORIES)
                          + f" | {'yes' if r['paper_in_ci'] else 'no'} |")
+        lines.append("")
+    apartments = per_apartment(records, apartment_of_scene(directory))
+    if apartments:
+        lines += ["## Per apartment (the paper authors' tasks)", "", "| suite | method | apartment | n | success | collision |",
+                  "|---|---|---|---:|---:|---:|"]
+        lines += [f"| {r['suite']} | {r['method']} | {r['apartment']} | {r['n']} | {r['success']:.1f} | {r['collision']:.1f} |"
+                  for r in apartments]
         lines.append("")
     lines += ["## Per-scene spread", "", "| suite | method | scenes | min | max | std |", "|---|---|---:|---:|---:|---:|"]
     for r in rows:
