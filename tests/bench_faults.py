@@ -17,3 +17,8 @@ def hanging_episode(spec):
 
 def raising_episode(spec):
     raise RuntimeError(f"boom in {spec.key}")
+
+
+def quick_episode(spec):
+    """An episode that ends at once with a paper category (no simulation)."""
+    return {"scenario": spec.scenario_id, "status": "collision", "detail": "quick", "sim_time": 1.0}

@@ -163,3 +163,162 @@ def test_ray_backend_runs_the_same_sweep(smoke_root, tmp_path):
     assert sorted(r.key for r in written) == sorted(s.key for s in specs)
     assert all(r.status != ERROR for r in written), [r.error for r in written]
     assert {r["key"] for r in load_records(tmp_path)} == {s.key for s in specs}
+
+
+# -- sweep integrity ------------------------------------------------------------
+
+
+def _method_file(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "my_method.yaml"
+    path.write_text(text)
+    return path
+
+
+def test_a_second_sweep_on_the_same_directory_is_refused(smoke_root, tmp_path):
+    from vamg_drake.bench.results import SweepLockedError, results_lock
+
+    suite = materialize_suite(SUITES["smoke"], smoke_root, progress=False)
+    specs = episode_specs(suite, load_methods(["scripted"]), 1)
+    with results_lock(tmp_path):  # as a running sweep holds it
+        with pytest.raises(SweepLockedError, match=f"pid {os.getpid()}"):
+            run_sweep(specs, tmp_path, episode_fn=bench_faults.quick_episode, progress=False)
+        assert not (tmp_path / "results.jsonl").exists()
+        out = _out_with_suite(smoke_root, tmp_path / "cli")
+        with results_lock(out):
+            with pytest.raises(SystemExit, match="another sweep .* is writing these results"):
+                main(["bench", "--suite", "smoke", "--methods", "scripted", "--out", str(out), "--quiet"])
+    # Released: the sweep runs.
+    assert len(run_sweep(specs, tmp_path, episode_fn=bench_faults.quick_episode, progress=False)) == 2
+
+
+def test_an_edited_method_runs_again_and_the_report_counts_it_once(smoke_root, tmp_path):
+    from vamg_drake.bench.report import write_report
+
+    suite = materialize_suite(SUITES["smoke"], smoke_root, progress=False)
+    method_file = _method_file(tmp_path, "policy: scripted\n")
+    specs = episode_specs(suite, load_methods([str(method_file)]), 1)
+    out = tmp_path / "out"
+    assert len(run_sweep(specs, out, episode_fn=bench_faults.quick_episode, progress=False)) == 2
+    # Unchanged: a resume runs nothing.
+    assert run_sweep(episode_specs(suite, load_methods([str(method_file)]), 1), out, resume=True,
+                     episode_fn=bench_faults.quick_episode, progress=False) == []
+    method_file.write_text("policy: scripted\nscripted: {speed: 0.3}\n")
+    edited = episode_specs(suite, load_methods([str(method_file)]), 1)
+    assert [s.key for s in edited] == [s.key for s in specs]
+    assert {s.method_digest for s in edited}.isdisjoint({s.method_digest for s in specs})
+    again = run_sweep(edited, out, resume=True, episode_fn=bench_faults.quick_episode, progress=False)
+    assert sorted(r.key for r in again) == sorted(s.key for s in specs)
+    records = load_records(out)
+    assert len(records) == 4 and {r["method_digest"] for r in records[2:]} == {edited[0].method_digest}
+    report = write_report(out).read_text()
+    assert "| smoke | my_method | 2 |" in report and "2 earlier records" in report
+    assert [p.name for p in out.iterdir() if p.name.startswith(".report")] == []  # no temporary file left
+
+
+def test_resume_retry_errors_reruns_error_records_and_counts_each_key_once(smoke_root, tmp_path):
+    from vamg_drake.bench.report import results_table, write_report
+    from vamg_drake.bench.results import latest_records
+
+    suite = materialize_suite(SUITES["smoke"], smoke_root, progress=False)
+    specs = episode_specs(suite, load_methods(["scripted"]), 1)
+    run_sweep(specs, tmp_path, episode_fn=bench_faults.raising_episode, progress=False)
+    # A plain resume treats errors as finished ...
+    assert run_sweep(specs, tmp_path, resume=True, episode_fn=bench_faults.quick_episode, progress=False) == []
+    # ... --retry-errors runs them again.
+    retried = run_sweep(specs, tmp_path, resume=True, retry_errors=True, episode_fn=bench_faults.quick_episode,
+                        progress=False)
+    assert [r.status for r in retried] == ["collision", "collision"]
+    records = load_records(tmp_path)
+    assert [r["status"] for r in records] == [ERROR, ERROR, "collision", "collision"]
+    (row,) = results_table(latest_records(records))
+    assert row["n"] == 2 and row["collision"] == 100.0 and row[OTHER] == 0.0
+    write_report(tmp_path)
+    # Nothing left to retry.
+    assert run_sweep(specs, tmp_path, resume=True, retry_errors=True, episode_fn=bench_faults.quick_episode,
+                     progress=False) == []
+    with pytest.raises(SystemExit, match="--retry-errors: only with --resume"):
+        main(["bench", "--suite", "smoke", "--methods", "scripted", "--out", str(tmp_path), "--retry-errors"])
+
+
+def test_records_carry_provenance_and_the_method_digest(smoke_root, tmp_path):
+    suite = materialize_suite(SUITES["smoke"], smoke_root, progress=False)
+    (method,) = load_methods(["scripted"])
+    specs = episode_specs(suite, [method], 1)
+    for fn in (bench_faults.quick_episode, bench_faults.crashing_episode):
+        out = tmp_path / fn.__name__
+        run_sweep(specs, out, episode_fn=fn, progress=False)
+        for r in load_records(out):
+            assert r["method_digest"] == method.digest and len(method.digest) == 10
+            p = r["provenance"]
+            assert p["code_version"] and p["drake_version"] and p["config"]["policy"] == "scripted", p
+
+
+def _children(pid: int) -> list[int]:
+    """Live processes whose parent is ``pid`` (from /proc)."""
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid and fields[0] != "Z":
+            out.append(int(stat.parent.name))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+SWEEP_SCRIPT = """
+import sys
+sys.path.insert(0, {tests!r})
+import bench_faults
+from vamg_drake.bench.runner import EpisodeSpec, run_sweep
+specs = [EpisodeSpec(key=f"k/{{i}}", suite="s", method="m", method_file="", scenario_file="", scenario_id="x", scene=0,
+                     target_index=0, target="t", trigger_distance=None, run_seed=0, shortest_path=None) for i in range(2)]
+run_sweep(specs, {out!r}, workers=2, episode_fn=bench_faults.hanging_episode, progress=False, keep_episodes=False)
+"""
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
+def test_a_killed_sweep_leaves_no_worker_running(tmp_path, sig):
+    script = SWEEP_SCRIPT.format(tests=str(Path(__file__).parent), out=str(tmp_path))
+    proc = subprocess.Popen([sys.executable, "-c", script], cwd=ROOT, start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.time() + 120
+        workers: list[int] = []
+        while time.time() < deadline and len(workers) < 2:
+            time.sleep(0.2)
+            workers = [p for p in _children(proc.pid)
+                       if "spawn_main" in Path(f"/proc/{p}/cmdline").read_bytes().decode(errors="replace")]
+        assert len(workers) == 2, "the sweep never started its workers"
+        time.sleep(1.0)
+        os.kill(proc.pid, sig)  # the sweep only, not its process group
+        proc.wait(timeout=30)
+        deadline = time.time() + 15
+        while time.time() < deadline and any(_alive(p) for p in workers):
+            time.sleep(0.2)
+        assert not any(_alive(p) for p in workers), "a worker outlived its sweep"
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
+def test_a_record_the_report_cannot_read_is_rejected_with_file_line_and_field(tmp_path):
+    good = {"key": "a", "suite": "smoke", "method": "full", "scene": 0, "status": "success"}
+    for bad, field in [({"method": None}, "method"), ({"scene": [1]}, "scene"), ({"status": 3}, "status"),
+                       ({"timings": {"planner": 5}}, "timings.planner"), ({"shortest_path": "far"}, "shortest_path"),
+                       ({"trigger_distance": "near"}, "trigger_distance"), ({"sim_time": None}, "sim_time")]:
+        (tmp_path / "results.jsonl").write_text(json.dumps(good) + "\n" + json.dumps({**good, "key": "b", **bad}) + "\n")
+        with pytest.raises(SystemExit, match=rf"results.jsonl:2: {field}: "):
+            main(["report", str(tmp_path)])
+    # A minimal record (key and status) gets its defaults and reports.
+    (tmp_path / "results.jsonl").write_text(json.dumps({"key": "a", "status": "success"}) + "\n")
+    assert main(["report", str(tmp_path)]) == 0

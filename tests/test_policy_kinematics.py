@@ -143,6 +143,25 @@ def test_missing_maps_are_built_on_demand(tmp_path, capsys) -> None:
     np.testing.assert_array_equal(again.torso_height.best_bin, maps.torso_height.best_bin)
 
 
+@pytest.mark.parametrize("damage", ["truncate", "garbage", "meta"])
+def test_a_corrupt_cache_file_is_rebuilt(tmp_path, capsys, damage) -> None:
+    config = KinematicMapsConfig(reach_samples=20_000, torso_samples=20_000)
+    maps = KinematicMaps.load_or_build(config, cache_dir=tmp_path, progress=False)
+    folder = KinematicMaps.cache_folder(config, tmp_path)
+    reach = folder / "reachability.npz"
+    if damage == "truncate":
+        reach.write_bytes(reach.read_bytes()[: reach.stat().st_size // 2])
+    elif damage == "garbage":
+        reach.write_bytes(b"not a zip file")
+    else:
+        (folder / "meta.json").write_text("{")
+    capsys.readouterr()
+    again = KinematicMaps.load_or_build(config, cache_dir=tmp_path, progress=True)
+    assert "does not load" in capsys.readouterr().out
+    np.testing.assert_array_equal(again.reachability.keys, maps.reachability.keys)
+    KinematicMaps.load(folder)  # the rebuilt cache loads again
+
+
 def test_a_save_interrupted_midway_leaves_no_partial_file(tmp_path, monkeypatch) -> None:
     """Two benchmark workers may build the same maps at once and a third may
     load them meanwhile: every file appears whole (renamed into place) or not

@@ -4,7 +4,7 @@
     vamg scenario generate --seed N --out FILE [--replicacad SCENE [--replicacad-dir DIR]]
     vamg scenario import-tasks TASK_FILE --out DIR [--dynamic] [--tasks K]
     vamg maps build            (kinematic maps, when the policy package provides them)
-    vamg bench --suite S --methods a,b [--seeds K] --out DIR [--workers N] [--backend local|ray] [--resume]
+    vamg bench --suite S --methods a,b [--seeds K] --out DIR [--workers N] [--backend local|ray] [--resume [--retry-errors]]
     vamg report DIR
 
 Bad input (a file, a field, an argument) ends the command with one line per
@@ -179,6 +179,11 @@ def _cmd_bench(args) -> int:
         methods = load_methods([m.strip() for m in args.methods.split(",") if m.strip()])
     except (SuiteError, MethodError) as e:
         raise SystemExit(f"vamg bench: {e}") from None
+    if args.retry_errors and not args.resume:
+        raise SystemExit("vamg bench: --retry-errors: only with --resume (it reruns recorded errors)")
+    if not (math.isfinite(args.wall_limit) and args.wall_limit > 0):
+        raise SystemExit(f"vamg bench: --wall-limit: must be a positive number of seconds, got {args.wall_limit}")
+    _check_out_dir(args.out)
     check_rendering_libraries()
     try:
         suite = materialize_suite(config, args.out, progress=not args.quiet)
@@ -186,7 +191,7 @@ def _cmd_bench(args) -> int:
         records = run_sweep(specs, args.out, workers=args.workers, backend=args.backend, resume=args.resume,
                             wall_limit=args.wall_limit, progress=not args.quiet, ray_address=args.ray_address,
                             keep_episodes=not args.no_episode_logs,
-                            prepare=lambda: prepare_episode_caches(methods))
+                            prepare=lambda: prepare_episode_caches(methods), retry_errors=args.retry_errors)
     except (SuiteError, FileExistsError, ValueError, RuntimeError) as e:
         raise SystemExit(f"vamg bench: {e}") from None
     print(json.dumps({"suite": config.name, "scenarios": len(suite.scenarios), "excluded": len(suite.excluded),
@@ -248,7 +253,10 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--workers", type=int, default=1, help="episodes in flight at once (default 1)")
     bench.add_argument("--backend", choices=("local", "ray"), default="local")
     bench.add_argument("--ray-address", default=None, help="Ray cluster address (default: a local instance)")
-    bench.add_argument("--resume", action="store_true", help="skip episodes already in DIR/results.jsonl")
+    bench.add_argument("--resume", action="store_true",
+                       help="skip episodes already in DIR/results.jsonl (run with the method file as it is now)")
+    bench.add_argument("--retry-errors", action="store_true",
+                       help="with --resume: run again the episodes recorded as error (the report counts the latest)")
     bench.add_argument("--task-file", default=None, help="paper_static/paper_dynamic: the authors' task file (default: $VAMG_PAPER_TASKS)")
     bench.add_argument("--scenes", type=int, default=None, help="override the suite's number of scenes")
     bench.add_argument("--targets", type=int, default=None, help="override the suite's targets per scene")

@@ -1,7 +1,8 @@
 """``vamg report DIR``: the paper's tables and plots from a results directory.
 
 Reads ``DIR/results.jsonl`` (a truncated last line is skipped with a warning;
-the file is not modified) and writes ``DIR/report.md`` plus PNG plots:
+the file is not modified; an episode recorded more than once counts once, by
+its latest record) and writes ``DIR/report.md`` (atomically) plus PNG plots:
 
 * the results table (paper Table "Simulation evaluation results"): success and
   each failure category in % per suite and method, with 95 % Wilson intervals;
@@ -32,7 +33,8 @@ import numpy as np
 from vamg_drake.bench.methods import PAPER_METHODS
 from vamg_drake.bench.metrics import spl, wilson_interval
 from vamg_drake.bench.paper_results import PAPER_EPISODES, paper_row
-from vamg_drake.bench.results import CATEGORIES, OTHER, RESULTS_FILE, SUCCESS, category_of, load_records
+from vamg_drake.bench.results import CATEGORIES, OTHER, RESULTS_FILE, SUCCESS, category_of, latest_records, load_records
+from vamg_drake.provenance import atomic_write_text
 
 log = logging.getLogger(__name__)
 
@@ -362,7 +364,8 @@ def write_report(directory: str | Path) -> Path:
         ResultsError: a bad line that is not the last.
     """
     directory = Path(directory)
-    records = load_records(directory / RESULTS_FILE)
+    all_records = load_records(directory / RESULTS_FILE)
+    records = latest_records(all_records)
     if not records:
         raise FileNotFoundError(f"{directory / RESULTS_FILE}: no finished episodes yet")
     rows = results_table(records)
@@ -374,7 +377,10 @@ def write_report(directory: str | Path) -> Path:
     plot_failures(rows, directory / plots["failures"])
     plot_spl(rows, directory / plots["spl"])
     plot_per_scene(records, directory / plots["per_scene"])
-    lines = [f"# Benchmark report: {directory.name}", "", f"{len(records)} episodes from `{RESULTS_FILE}`.", ""]
+    superseded = len(all_records) - len(records)
+    lines = [f"# Benchmark report: {directory.name}", "",
+             f"{len(records)} episodes from `{RESULTS_FILE}`"
+             + (f" ({superseded} earlier records of episodes run again not counted)." if superseded else "."), ""]
     lines += ["## Results (paper table; all values %)", "",
               "| suite | method | n | success | 95 % Wilson | " + " | ".join(COLUMNS[1:]) + " | SPL |",
               "|---|---|---:|---:|---|" + "---:|" * len(COLUMNS[1:]) + "---:|"]
@@ -435,5 +441,5 @@ def write_report(directory: str | Path) -> Path:
     if errors:
         lines += ["## Harness errors", ""] + [f"- `{r['key']}`: {r['error'].splitlines()[0] if r['error'] else ''}" for r in errors[:50]] + [""]
     out = directory / "report.md"
-    out.write_text("\n".join(lines))
+    atomic_write_text(out, "\n".join(lines))
     return out

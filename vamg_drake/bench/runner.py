@@ -10,11 +10,24 @@ the same isolated episodes to a Ray cluster (``ray.init(address)``; a local
 instance when no address is given). Each episode also writes its log, its
 ``episode.json`` and a top-down plot to ``DIR/episodes/<key>/`` (``/`` in the
 key becomes ``__``), so a failure can be read without running it again.
+
+Integrity: a sweep holds ``results_lock`` on its directory (a second sweep
+on the same ``--out`` is refused); an episode is done only when its latest
+record ran with the current content of its method file (``method_digest``:
+an edited method runs again) and, with ``retry_errors``, did not end in
+``error``; each worker exits when the sweep process is gone (it watches its
+parent), and a sweep stopped by a signal kills its workers first.
 """
 
+import atexit
+import contextlib
 import dataclasses as dc
+import functools
 import logging
 import multiprocessing as mp
+import os
+import signal
+import threading
 import time
 import traceback
 from collections import defaultdict
@@ -26,7 +39,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from vamg_drake.bench.methods import Method
-from vamg_drake.bench.results import ERROR, RESULTS_FILE, SUCCESS, EpisodeRecord, ResultsWriter, finished_keys
+from vamg_drake.bench.results import ERROR, RESULTS_FILE, SUCCESS, EpisodeRecord, ResultsWriter, recorded, results_lock
 from vamg_drake.bench.suites import Suite, with_trigger_distance
 
 log = logging.getLogger(__name__)
@@ -53,6 +66,7 @@ class EpisodeSpec:
         shortest_path: l_i for SPL [m].
         episode_dir: where the episode writes episode.log, episode.json and
             topdown.png ("": nowhere).
+        method_digest: hash of the method file's content (``Method.digest``).
     """
 
     key: str
@@ -68,6 +82,7 @@ class EpisodeSpec:
     run_seed: int
     shortest_path: float | None
     episode_dir: str = ""
+    method_digest: str = ""
 
 
 EPISODES_DIR = "episodes"
@@ -93,7 +108,7 @@ def episode_specs(suite: Suite, methods: list[Method], seeds: int) -> list[Episo
                         key=f"{suite.config.name}/{m.name}/{s.id}/{d}/r{run}", suite=suite.config.name, method=m.name,
                         method_file=str(m.source), scenario_file=str((suite.directory / s.file).resolve()), scenario_id=s.id,
                         scene=s.scene, target_index=s.target_index, target=s.target, trigger_distance=distance, run_seed=run,
-                        shortest_path=s.shortest_path,
+                        shortest_path=s.shortest_path, method_digest=m.digest,
                     ))
     return specs
 
@@ -118,8 +133,23 @@ def run_scenario_episode(spec: EpisodeSpec):
 EpisodeFn = Callable[[EpisodeSpec], object]
 
 
+@functools.cache
+def _method_provenance(method_file: str, run_seed: int) -> dict:
+    """Provenance for a record whose worker sent none (it died or raised)."""
+    from vamg_drake.bench.methods import MethodError, load_method
+    from vamg_drake.provenance import provenance
+
+    try:
+        config = load_method(method_file).config
+    except MethodError:
+        config = None
+    return provenance(config, seed={"run": run_seed})
+
+
 def _record(spec: EpisodeSpec, status: str, wall: float, result: dict | None = None, error: str = "") -> EpisodeRecord:
     result = result or {}
+    if not error and status == ERROR:
+        error = result.get("error", "") or ""
     return EpisodeRecord(
         key=spec.key, suite=spec.suite, method=spec.method, scene=spec.scene, target_index=spec.target_index,
         target=spec.target, trigger_distance=spec.trigger_distance, run_seed=spec.run_seed,
@@ -129,16 +159,19 @@ def _record(spec: EpisodeSpec, status: str, wall: float, result: dict | None = N
         path_length=float(result.get("path_length", 0.0) or 0.0), shortest_path=spec.shortest_path,
         timings=result.get("timings", {}) or {}, phases=result.get("phases", []) or [], error=error,
         episode_dir=f"{EPISODES_DIR}/{episode_dir_name(spec.key)}" if spec.episode_dir else "",
+        method_digest=spec.method_digest,
+        provenance=result.get("provenance") or _method_provenance(spec.method_file, spec.run_seed),
     )
 
 
-def _child(conn, episode_fn: EpisodeFn, spec: EpisodeSpec) -> None:
+def _child(conn, episode_fn: EpisodeFn, spec: EpisodeSpec, parent: int) -> None:
     import logging as _logging
 
     # Warnings to the sweep's stderr; the episode's own INFO log goes to its file.
     stderr = _logging.StreamHandler()
     stderr.setLevel(_logging.WARNING)
     _logging.basicConfig(level=_logging.WARNING, handlers=[stderr])
+    threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
     try:
         result = episode_fn(spec)
         payload = dc.asdict(result) if dc.is_dataclass(result) else dict(result)
@@ -149,6 +182,35 @@ def _child(conn, episode_fn: EpisodeFn, spec: EpisodeSpec) -> None:
         conn.close()
 
 
+def _exit_with_parent(parent: int, poll: float = 1.0) -> None:
+    """Ends this worker when the sweep that started it is gone (killed, even
+    by SIGKILL, which runs no handler in the parent). ``parent`` is the pid
+    the sweep passed, so a sweep killed while this worker was still starting
+    is noticed too."""
+    while os.getppid() == parent:
+        time.sleep(poll)
+    os._exit(70)
+
+
+#: Workers in flight in this process (killed when the sweep stops early).
+_LIVE_WORKERS: set = set()
+_LIVE_LOCK = threading.Lock()
+
+
+def _kill_live_workers() -> None:
+    """Kills every worker still running (a sweep stopped by a signal or an exception)."""
+    with _LIVE_LOCK:
+        workers = list(_LIVE_WORKERS)
+    for process in workers:
+        if process.is_alive():
+            process.kill()
+    for process in workers:
+        process.join(5.0)
+
+
+atexit.register(_kill_live_workers)
+
+
 def run_isolated(spec: EpisodeSpec, episode_fn: EpisodeFn = run_scenario_episode, wall_limit: float = 900.0) -> EpisodeRecord:
     """Runs one episode in a fresh process; never raises for the episode's sake.
 
@@ -157,9 +219,11 @@ def run_isolated(spec: EpisodeSpec, episode_fn: EpisodeFn = run_scenario_episode
     """
     ctx = mp.get_context("spawn")
     recv, send = ctx.Pipe(duplex=False)
-    process = ctx.Process(target=_child, args=(send, episode_fn, spec), daemon=True)
+    process = ctx.Process(target=_child, args=(send, episode_fn, spec, os.getpid()), daemon=True)
     t0 = time.perf_counter()
     process.start()
+    with _LIVE_LOCK:
+        _LIVE_WORKERS.add(process)
     send.close()
     message = None
     deadline = t0 + wall_limit
@@ -180,6 +244,8 @@ def run_isolated(spec: EpisodeSpec, episode_fn: EpisodeFn = run_scenario_episode
     if process.is_alive():
         process.kill()
         process.join()
+    with _LIVE_LOCK:
+        _LIVE_WORKERS.discard(process)
     recv.close()
     if message is None:
         if wall >= wall_limit:
@@ -232,6 +298,7 @@ def run_sweep(
     ray_address: str | None = None,
     keep_episodes: bool = True,
     prepare: Callable[[], None] | None = None,
+    retry_errors: bool = False,
 ) -> list[EpisodeRecord]:
     """Runs the episodes not yet in ``out_dir/results.jsonl`` and appends their records.
 
@@ -240,8 +307,13 @@ def run_sweep(
         out_dir: results directory.
         workers: episodes in flight at once.
         backend: "local" (process per episode) or "ray".
-        resume: skip keys already recorded; without it, a results file that
-            already holds any of these keys is an error (nothing is overwritten).
+        resume: skip keys already recorded with the current method file
+            (their latest record's ``method_digest``; records from before
+            digests were kept count as current); without it, a results file
+            that already holds any of these keys is an error (nothing is
+            overwritten).
+        retry_errors: with ``resume``, run again the episodes whose latest
+            record is ``error`` (the new record supersedes it in the report).
         episode_fn: the episode (picklable; a module-level function).
         wall_limit: per-episode wall-clock limit [s].
         progress: show the progress bar.
@@ -255,6 +327,9 @@ def run_sweep(
 
     Returns:
         The records written by this call.
+
+    Raises:
+        SweepLockedError: another sweep is writing ``out_dir``.
     """
     if backend not in BACKENDS:
         raise ValueError(f"backend: unknown '{backend}' (known: {', '.join(BACKENDS)})")
@@ -265,44 +340,93 @@ def run_sweep(
     if len(set(keys)) != len(keys):
         raise ValueError("specs: repeated keys")
     path = Path(out_dir) / RESULTS_FILE
-    done = finished_keys(path)
-    clash = done & set(keys)
-    if clash and not resume:
-        raise FileExistsError(f"{path} already holds {len(clash)} of these episodes; pass --resume to continue the sweep, or use another --out")
-    todo = [s for s in specs if s.key not in done]
-    if keep_episodes:
-        episodes = (Path(out_dir) / EPISODES_DIR).resolve()
-        todo = [dc.replace(s, episode_dir=str(episodes / episode_dir_name(s.key))) for s in todo]
-    if todo and prepare is not None:
-        prepare()
-    bar = _Progress(len(specs), len(specs) - len(todo), progress)
-    written: list[EpisodeRecord] = []
-    with ResultsWriter(path) as writer:
+    with results_lock(out_dir), _stop_workers_on_signals():
+        latest = recorded(path)
+        clash = latest.keys() & set(keys)
+        if clash and not resume:
+            raise FileExistsError(f"{path} already holds {len(clash)} of these episodes; pass --resume to continue "
+                                  "the sweep, or use another --out")
+        todo = [s for s in specs if _to_run(s, latest.get(s.key), retry_errors)]
+        rerun = [s for s in todo if s.key in latest]
+        if rerun:
+            changed = sum(1 for s in rerun if latest[s.key].get("status") != ERROR or not retry_errors)
+            log.warning("%s: running %d recorded episodes again (%d with an edited method file, %d errors)", path,
+                        len(rerun), changed, len(rerun) - changed)
+        if keep_episodes:
+            episodes = (Path(out_dir) / EPISODES_DIR).resolve()
+            todo = [dc.replace(s, episode_dir=str(episodes / episode_dir_name(s.key))) for s in todo]
+        if todo and prepare is not None:
+            prepare()
+        bar = _Progress(len(specs), len(specs) - len(todo), progress)
+        written: list[EpisodeRecord] = []
+        with ResultsWriter(path) as writer:
 
-        def finish(record: EpisodeRecord) -> None:
-            writer.append(record)
-            written.append(record)
-            bar.update(record)
-            if record.status == ERROR:
-                log.warning("%s: %s", record.key, record.error.splitlines()[0] if record.error else "error")
+            def finish(record: EpisodeRecord) -> None:
+                writer.append(record)
+                written.append(record)
+                bar.update(record)
+                if record.status == ERROR:
+                    log.warning("%s: %s", record.key, record.error.splitlines()[0] if record.error else "error")
 
-        try:
-            if backend == "ray":
-                _run_ray(todo, workers, episode_fn, wall_limit, finish, ray_address)
-            else:
-                _run_local(todo, workers, episode_fn, wall_limit, finish)
-        finally:
-            bar.close()
+            try:
+                if backend == "ray":
+                    _run_ray(todo, workers, episode_fn, wall_limit, finish, ray_address)
+                else:
+                    _run_local(todo, workers, episode_fn, wall_limit, finish)
+            finally:
+                bar.close()
     return written
 
 
+def _to_run(spec: EpisodeSpec, latest: dict | None, retry_errors: bool) -> bool:
+    """Whether an episode still has to run, given its latest record (or None)."""
+    if latest is None:
+        return True
+    digest = latest.get("method_digest", "")
+    if digest and spec.method_digest and digest != spec.method_digest:
+        return True  # the method file was edited since
+    return retry_errors and latest.get("status") == ERROR
+
+
+class _StopSweep(BaseException):
+    """Raised in the main thread by SIGTERM / SIGHUP: the sweep stops, its workers are killed."""
+
+
+@contextlib.contextmanager
+def _stop_workers_on_signals():
+    """SIGTERM and SIGHUP stop the sweep like Ctrl-C does; on any way out
+    with an exception every worker still running is killed."""
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        def stop(signum, frame):
+            raise _StopSweep(f"stopped by signal {signal.Signals(signum).name}")
+
+        for sig in (signal.SIGTERM, signal.SIGHUP):
+            previous[sig] = signal.signal(sig, stop)
+    try:
+        yield
+    except BaseException:
+        _kill_live_workers()
+        raise
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
 def _run_local(todo: list[EpisodeSpec], workers: int, episode_fn: EpisodeFn, wall_limit: float, finish) -> None:
-    with ThreadPoolExecutor(max_workers=workers) as pool:
+    pool = ThreadPoolExecutor(max_workers=workers)
+    try:
         pending = {pool.submit(run_isolated, spec, episode_fn, wall_limit) for spec in todo}
         while pending:
             complete, pending = wait(pending, return_when=FIRST_COMPLETED)
             for future in complete:
                 finish(future.result())
+    except BaseException:
+        # Kill the workers before waiting for their threads (else each waits out its wall limit).
+        pool.shutdown(wait=False, cancel_futures=True)
+        _kill_live_workers()
+        raise
+    pool.shutdown()
 
 
 def _run_ray(todo: list[EpisodeSpec], workers: int, episode_fn: EpisodeFn, wall_limit: float, finish, address: str | None) -> None:

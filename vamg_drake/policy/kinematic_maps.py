@@ -482,15 +482,22 @@ class KinematicMaps:
         cache_dir: Path | None = None,
         progress: bool = True,
     ) -> "KinematicMaps":
-        """Loads the cached maps for this robot model and config, building them if missing."""
+        """Loads the cached maps for this robot model and config, building them
+        if missing, and rebuilding them if a cached file does not load (cut
+        short, corrupted, or of another format): a bad cache costs one
+        rebuild, never an episode."""
         config = config or KinematicMapsConfig()
         folder = KinematicMaps.cache_folder(config, cache_dir)
         try:
             return KinematicMaps.load(folder)
         except FileNotFoundError as e:
-            _log.warning("%s; building kinematic maps now (one-time, cached in %s)", e, folder)
-            if progress:
-                print(f"[vamg] {e}; building kinematic maps now (one-time, cached in {folder})", flush=True)
+            reason = f"{e}; building kinematic maps now (one-time, cached in {folder})"
+        except Exception as e:  # noqa: BLE001 - zipfile, numpy, json and key errors of a damaged file
+            reason = (f"kinematic maps cache in {folder} does not load ({type(e).__name__}: {e}); "
+                      "rebuilding it")
+        _log.warning("%s", reason)
+        if progress:
+            print(f"[vamg] {reason}", flush=True)
         maps = KinematicMaps.build(config, progress=progress)
         maps.save(folder)
         return maps
