@@ -312,3 +312,29 @@ def test_cli_error_episode_exits_non_zero_with_episode_json(tmp_path):
 
 #: A config that passes validation but makes a component raise in the episode.
 RAISING_CONFIG = "waypoints: [[1.0]]\n"
+
+
+@pytest.mark.parametrize("data, message", [
+    (b"", "is empty"), (b"\x00\x01", "is a binary file"), (b"scenes: abc\n", "scenes: expected an integer"),
+    (b"scenes: [\n", "not valid YAML"), (None, "is a directory"),
+])
+def test_bad_suite_files_name_the_file_and_field(tmp_path, data, message):
+    from vamg_drake.bench.suites import SuiteError, suite_config
+
+    path = tmp_path / "my_suite.yaml"
+    if data is None:
+        path.mkdir()
+    else:
+        path.write_bytes(data)
+    with pytest.raises(SuiteError, match=f"^suite file {path}: {message}"):
+        suite_config(str(path))
+
+
+def test_bench_arguments_are_checked_before_any_work(tmp_path):
+    from vamg_drake.cli import main
+
+    for args, message in [(["--seeds", "0"], "--seeds and --workers"), (["--workers", "0"], "--seeds and --workers"),
+                          (["--wall-limit", "nan"], "--wall-limit"), (["--wall-limit", "-5"], "--wall-limit")]:
+        with pytest.raises(SystemExit, match=message):
+            main(["bench", "--suite", "smoke", "--methods", "scripted", "--out", str(tmp_path / "o"), *args])
+    assert not (tmp_path / "o" / "suites").exists()  # nothing was generated

@@ -181,6 +181,8 @@ def _cmd_bench(args) -> int:
         raise SystemExit(f"vamg bench: {e}") from None
     if args.retry_errors and not args.resume:
         raise SystemExit("vamg bench: --retry-errors: only with --resume (it reruns recorded errors)")
+    if args.seeds < 1 or args.workers < 1:
+        raise SystemExit(f"vamg bench: --seeds and --workers: must be >= 1, got {args.seeds} and {args.workers}")
     if not (math.isfinite(args.wall_limit) and args.wall_limit > 0):
         raise SystemExit(f"vamg bench: --wall-limit: must be a positive number of seconds, got {args.wall_limit}")
     _check_out_dir(args.out)

@@ -35,8 +35,6 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pydrake.common.yaml import yaml_load_typed
-
 from vamg_drake.bench.metrics import ShortestPathConfig, shortest_base_path
 from vamg_drake.bench.oracle_grasp import OracleGraspConfig, check_graspable
 from vamg_drake.world.paper_tasks import PaperTaskConfig, TaskFileError, import_scene, read_task_file
@@ -163,12 +161,14 @@ def suite_config(name_or_path: str, scenes: int | None = None, targets: int | No
     if name_or_path in SUITES:
         config = dc.replace(SUITES[name_or_path])
     elif path.suffix in (".yaml", ".yml"):
-        if not path.is_file():
+        if not path.exists():
             raise SuiteError(f"suite file {path}: no such file")
+        from vamg_drake.config_validation import InputError, load_typed_file
+
         try:
-            config = yaml_load_typed(schema=SuiteConfig, data=path.read_text(), defaults=SuiteConfig(name=path.stem))
-        except Exception as e:  # Drake names the field
-            raise SuiteError(f"suite file {path}: {' '.join(str(e).split())}") from None
+            config = load_typed_file(path, SuiteConfig, SuiteConfig(name=path.stem), source=f"suite file {path}")
+        except InputError as e:  # names the file and the field
+            raise SuiteError(str(e)) from None
     else:
         raise SuiteError(f"unknown suite '{name_or_path}' (known: {', '.join(SUITES)}; or a .yaml SuiteConfig file)")
     if scenes is not None:
