@@ -338,3 +338,18 @@ def test_bench_arguments_are_checked_before_any_work(tmp_path):
         with pytest.raises(SystemExit, match=message):
             main(["bench", "--suite", "smoke", "--methods", "scripted", "--out", str(tmp_path / "o"), *args])
     assert not (tmp_path / "o" / "suites").exists()  # nothing was generated
+
+
+def test_a_drake_assertion_while_building_is_a_recorded_error(tmp_path):
+    """Drake's failed conditions arrive as SystemExit; building the diagram is
+    inside the recorded-error path, so episode.json still gets the traceback.
+    (A scenario built in Python skips the file validation: Drake's Box() check fires.)"""
+    from vamg_drake.episode import run_episode
+
+    scenario = box_room_scenario()
+    scenario.furniture[0].parts[0].shape = Box([-1.0, 1.0, 0.1])
+    result = run_episode(scenario, DiagramConfig(policy="scripted"), out_dir=tmp_path, record=False, progress=False)
+    assert result.status == "error" and result.detail.startswith("SystemExit: Failure at")
+    episode = json.loads((tmp_path / "episode.json").read_text())
+    assert episode["status"] == "error" and "shape_specification" in episode["error"]
+    assert "Traceback" in (tmp_path / "episode.log").read_text()
