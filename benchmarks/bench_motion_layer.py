@@ -66,7 +66,7 @@ def pillar() -> np.ndarray:
 def run(points: np.ndarray, chunks: list[np.ndarray], incremental: bool) -> dict:
     """Feeds the revisions to a fresh PlannerSystem; returns its costs and verdicts."""
     timings = ModuleTimings()
-    config = PlannerSystemConfig(incremental_check=incremental, planner=PlannerConfig(attempt_budget_s=5.0))
+    config = PlannerSystemConfig(incremental_check=incremental, planner=PlannerConfig(attempt_wall_limit_s=5.0))
     system = PlannerSystem(config, timings=timings)
     context = system.CreateDefaultContext()
     point_map = PointMap(CameraIntrinsics.from_config(HeadCameraConfig()))

@@ -30,7 +30,7 @@ def _goal(goal_id, q_goal, motion, phase=Phase.PREGRASP):
 
 
 def _system(config=None):
-    system = PlannerSystem(config or PlannerSystemConfig(planner=PlannerConfig(attempt_budget_s=5.0)))
+    system = PlannerSystem(config or PlannerSystemConfig(planner=PlannerConfig(attempt_wall_limit_s=5.0)))
     context = system.CreateDefaultContext()
     system.GetInputPort("point_map").FixValue(
         context, AbstractValue.Make(PointMapSnapshot(np.zeros((0, 3)), np.zeros(0, np.int64), 0.03, 0)))
@@ -64,7 +64,7 @@ def test_a_robot_behind_schedule_gets_slack_in_proportion_to_the_motion():
     """The tracker follows the path, not the clock: a robot still short of the
     goal settle_time after the end of a long motion is not failed until
     settle_time + settle_time_fraction * duration; then it is."""
-    config = PlannerSystemConfig(planner=PlannerConfig(attempt_budget_s=5.0))
+    config = PlannerSystemConfig(planner=PlannerConfig(attempt_wall_limit_s=5.0))
     system, context = _system(config)
     q0 = layout.stow_configuration(1.0, 2.0, 0.5)
     q1 = q0.copy()
@@ -160,7 +160,7 @@ def _wall(x, y, revision):
 
 
 def test_replanning_stops_after_max_replans():
-    config = PlannerSystemConfig(max_replans=2, planner=PlannerConfig(attempt_budget_s=5.0))
+    config = PlannerSystemConfig(max_replans=2, planner=PlannerConfig(attempt_wall_limit_s=5.0))
     system, context = _system(config)
     q0 = layout.stow_configuration(0.0, 0.0, 0.0)
     system.GetInputPort("robot_configuration").FixValue(context, q0)

@@ -77,9 +77,10 @@ def test_configs_load_from_yaml():
     from vamg_drake.systems.planner_system import PlannerSystemConfig
 
     config = yaml_load_typed(schema=PlannerSystemConfig,
-                             data="period: 0.2\nplanner: {seed: 4, attempt_budget_s: 0.1, fold_fractions: [0.5]}")
+                             data="period: 0.2\nplanner: {seed: 4, attempt_budget_iterations: 800, fold_fractions: [0.5]}")
     assert config.period == 0.2
     assert config.planner.seed == 4 and config.planner.fold_fractions == [0.5]
+    assert config.planner.attempt_budget_iterations == 800
     assert config.planner.max_attempts == 3
 
 

@@ -9,7 +9,7 @@ from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig,
 from vamg_drake.robot import layout
 from vamg_drake.world.primitives import WorldBox
 
-CONFIG = PlannerConfig(attempt_budget_s=5.0)
+CONFIG = PlannerConfig(attempt_wall_limit_s=5.0)
 Q_START = layout.stow_configuration(0.0, 0.0, 0.0)
 Q_GOAL = layout.stow_configuration(-2.5, 0.5, 0.0)
 

@@ -24,7 +24,7 @@ def _box_points(center, half, spacing=0.03):
 
 
 def test_plans_then_replans_when_the_map_blocks_the_path():
-    system = PlannerSystem(PlannerSystemConfig(planner=PlannerConfig(attempt_budget_s=5.0)))
+    system = PlannerSystem(PlannerSystemConfig(planner=PlannerConfig(attempt_wall_limit_s=5.0)))
     context = system.CreateDefaultContext()
     qs = layout.stow_configuration(0.0, 0.0, 0.0)
     qg = layout.stow_configuration(3.0, 0.0, 0.0)
@@ -54,7 +54,7 @@ def test_plans_then_replans_when_the_map_blocks_the_path():
 
 def test_goal_in_collision_reports_an_invalidated_goal():
     """The map put the goal in collision: the policy must resample (not count a motion failure)."""
-    system = PlannerSystem(PlannerSystemConfig(planner=PlannerConfig(attempt_budget_s=5.0)))
+    system = PlannerSystem(PlannerSystemConfig(planner=PlannerConfig(attempt_wall_limit_s=5.0)))
     context = system.CreateDefaultContext()
     qg = layout.stow_configuration(3.0, 0.0, 0.0)
     goal = SubgoalCommand(7, qg, "plan", Phase.PREGRASP, layout.GRIPPER_MAX_OPENING, np.full(2, np.nan))
@@ -71,7 +71,7 @@ def test_goal_in_collision_reports_an_invalidated_goal():
 
 def test_new_points_are_checked_alone_and_the_environment_is_rebuilt_only_to_plan():
     timings = ModuleTimings()
-    system = PlannerSystem(PlannerSystemConfig(planner=PlannerConfig(attempt_budget_s=5.0)), timings=timings)
+    system = PlannerSystem(PlannerSystemConfig(planner=PlannerConfig(attempt_wall_limit_s=5.0)), timings=timings)
     context = system.CreateDefaultContext()
     point_map = PointMap(CameraIntrinsics.from_config(HeadCameraConfig()))
     point_map.add_points(np.concatenate([_box_points([1.5, y, 0.6], [2.0, 0.03, 0.6]) for y in (-2.0, 2.0)]))
@@ -129,7 +129,7 @@ def test_pregrasp_goal_straddling_the_target_is_approached_straight_from_behind(
     outcomes = {}
     for retreat in (0.10, 0.0):
         system = PlannerSystem(PlannerSystemConfig(approach_retreat=retreat,
-                                                   planner=PlannerConfig(attempt_budget_s=5.0)))
+                                                   planner=PlannerConfig(attempt_wall_limit_s=5.0)))
         context = system.CreateDefaultContext()
         goal = SubgoalCommand(1, q_goal, "plan", Phase.PREGRASP, layout.GRIPPER_MAX_OPENING, np.full(2, np.nan))
         system.GetInputPort("goal").FixValue(context, AbstractValue.Make(goal))

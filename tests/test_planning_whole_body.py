@@ -9,7 +9,7 @@ from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig,
 from vamg_drake.robot import layout
 
 # Generous budgets: tests check correctness, benchmarks/bench_planner.py speed.
-CONFIG = PlannerConfig(attempt_budget_s=5.0)
+CONFIG = PlannerConfig(attempt_wall_limit_s=5.0)
 
 
 @pytest.fixture(scope="module")
@@ -164,7 +164,7 @@ def test_fixed_base_searches_between_the_along_path_search_rounds(base_checker):
 
     problem = room_problem(26, base_checker)
     planner = WholeBodyPlanner.for_fetch(CollisionEnvironment.from_primitives(problem.obstacles),
-                                         PlannerConfig(seed=26, attempt_budget_s=5.0))
+                                         PlannerConfig(seed=26, attempt_wall_limit_s=5.0))
     calls = []
     along, carry = planner._along_base_path, planner._via_carry
 
@@ -191,7 +191,8 @@ def test_refine_joins_pieces_around_a_one_waypoint_piece():
     nothing, and the next piece's join test indexed the empty remainder (static
     s0021 and s0036, nav_and_manip: IndexError in the planner)."""
     from collections import defaultdict
-    import time
+
+    from vamg_drake.planning.whole_body_planner import _AttemptBudget
 
     planner = WholeBodyPlanner.for_fetch(CollisionEnvironment(), CONFIG)
     q0 = layout.stow_configuration(0.0, 0.0, 0.0)
@@ -202,9 +203,34 @@ def test_refine_joins_pieces_around_a_one_waypoint_piece():
     q2 = q1.copy()
     q2[layout.BASE_XY] += 0.2
     drive = np.linspace(q1, q2, 5)
-    path = planner._refine([arm, still, drive], defaultdict(float), np.random.default_rng(0), time.perf_counter() + 5.0)
+    budget = _AttemptBudget(CONFIG.attempt_budget_iterations, CONFIG.attempt_wall_limit_s)
+    path = planner._refine([arm, still, drive], defaultdict(float), np.random.default_rng(0), budget)
     np.testing.assert_allclose(path[0], q0)
     np.testing.assert_allclose(path[-1], q2)
     assert np.all(np.max(np.abs(np.diff(path, axis=0)), axis=1) > 0)  # no repeated waypoint
     with pytest.raises(RuntimeError, match="do not join"):
-        planner._refine([arm, drive[1:]], defaultdict(float), np.random.default_rng(0), time.perf_counter() + 5.0)
+        planner._refine([arm, drive[1:]], defaultdict(float), np.random.default_rng(0), budget)
+
+
+def test_the_budget_is_iterations_not_wall_time(base_checker):
+    """The same problem gives the same plan on any machine at any load (issue
+    19): an attempt's budget counts RRT-Connect iterations; the wall-clock
+    limit is a safety net, counted when it fires. Room problem 25: the first
+    attempt's searches all fail (1200 iterations), the second connects."""
+    from vamg_drake.planning.problems import room_problem
+
+    problem = room_problem(25, base_checker)
+    env = CollisionEnvironment.from_primitives(problem.obstacles)
+    a, b = (WholeBodyPlanner.for_fetch(env, PlannerConfig(seed=25)).plan(problem.q_start, problem.q_goal)
+            for _ in range(2))
+    assert a.success and a.attempts == 2 and a.wall_limit_hits == 0
+    assert a.rrt_iterations == b.rrt_iterations > 0
+    np.testing.assert_array_equal(a.trajectory.q, b.trajectory.q)
+    small = WholeBodyPlanner.for_fetch(env, PlannerConfig(seed=25, attempt_budget_iterations=50))
+    result = small.plan(problem.q_start, problem.q_goal)
+    assert not result.success and result.reason == FailureReason.TIMEOUT, result.message
+    assert "RRT-Connect iterations" in result.message and result.rrt_iterations == 150
+    stopped = WholeBodyPlanner.for_fetch(env, PlannerConfig(seed=25, attempt_wall_limit_s=0.0))
+    result = stopped.plan(problem.q_start, problem.q_goal)
+    assert not result.success and result.reason == FailureReason.TIMEOUT
+    assert result.wall_limit_hits == stopped.wall_limit_hits == 3

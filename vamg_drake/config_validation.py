@@ -277,13 +277,13 @@ def _value_problems(value, schema, path: str) -> list[str]:
 #: never fires or hangs the simulator, a zero resolution divides by zero.
 _POSITIVE = re.compile(
     r"^(time_step|period|command_period|head_pan_period|voxel_size|resolution|\w+_resolution|\w+_dt|depth_max"
-    r"|speed|turn_rate|attempt_budget_s|turning_radius|rrt_step|lift_height|radius|grasp_radius|crop_radius"
+    r"|speed|turn_rate|attempt_wall_limit_s|turning_radius|rrt_step|lift_height|radius|grasp_radius|crop_radius"
     r"|gain|max_opening|finger_length|finger_width|finger_thickness|max_rate_ratio)$")
 #: Integer fields that must be >= 1 (a count of zero makes the component do nothing or fail).
 _POSITIVE_INT = re.compile(
     r"^(width|height|max_attempts|num_\w+|max_points|samples_per_base|max_candidates|rrt_max_iterations"
     r"|hybrid_astar_max_expansions|lookahead_waypoints|max_resampled_waypoints|n_diverse|normal_neighbours"
-    r"|max_total_failures|max_motion_failures|top_down_yaws|bspline_samples)$")
+    r"|max_total_failures|max_motion_failures|top_down_yaws|bspline_samples|attempt_budget_iterations)$")
 #: (min field, max field) pairs that must be ordered, in the same sub-config.
 _ORDERED = (("depth_min", "depth_max"), ("pan_min", "pan_max"), ("tilt_min", "tilt_max"), ("z_min", "z_max"))
 #: Float fields that may be negative (offsets, angles, heights relative to something).

@@ -6,7 +6,6 @@ and the sampling bounds. Used for the torso + 7-joint arm at a fixed base.
 """
 
 import dataclasses
-import time
 from typing import Callable
 
 import numpy as np
@@ -61,7 +60,6 @@ def rrt_connect(
     upper: np.ndarray,
     rng: np.random.Generator,
     config: RRTConnectConfig | None = None,
-    deadline_s: float | None = None,
     weights: np.ndarray | None = None,
 ) -> tuple[np.ndarray | None, str]:
     """Plans start->goal; returns (path (N, d), "") or (None, reason).
@@ -71,7 +69,6 @@ def rrt_connect(
         motion_free: validity of the straight segment between two configurations.
         lower, upper: (d,) sampling bounds.
         rng: random generator (the same seed gives the same path).
-        deadline_s: `time.perf_counter()` value after which to give up ("timeout").
         weights: (d,) per-joint distance weights (default ones).
     """
     config = config or RRTConnectConfig()
@@ -91,8 +88,6 @@ def rrt_connect(
         return frm + d * (step / m)
 
     for it in range(config.max_iterations):
-        if deadline_s is not None and (it & 7) == 0 and time.perf_counter() > deadline_s:
-            return None, "timeout"
         a, b = trees[it % 2], trees[(it + 1) % 2]
         if rng.random() < config.goal_bias:
             target = b.q[0].copy()

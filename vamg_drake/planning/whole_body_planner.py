@@ -29,7 +29,13 @@ One attempt:
      the checked pieces joined (they must meet exactly) and re-interpolated
      at the checker's motion resolution.
   4. Time parametrization within `layout.V_MAX`.
-Budget: `PlannerConfig.attempt_budget_s` per attempt, `max_attempts` attempts.
+Budget, deterministic so that a plan (and an episode) does not depend on the
+machine's speed or load: `PlannerConfig.attempt_budget_iterations`
+RRT-Connect iterations per attempt over all its searches (the other stages
+are bounded by their own counts), `max_attempts` attempts, each with its own
+seeded generator. `attempt_wall_limit_s` is only a safety net against a
+pathological attempt; when it fires the plan depends on the machine, so it is
+logged and counted (`PlanResult.wall_limit_hits`, `WholeBodyPlanner.wall_limit_hits`).
 
 Start and goal inside the padding. The checker inflates every sphere by half
 the motion resolution (+ `extra_padding`) so that straight motions between
@@ -56,6 +62,7 @@ every goal it returns is accepted here.
 """
 
 import dataclasses
+import logging
 import math
 import time
 
@@ -70,6 +77,8 @@ from vamg_drake.planning.hybrid_astar import Footprint2D, HybridAStar, HybridASt
 from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.planning.whole_body_rrt import KernelRRTConfig, RRTConnectSearch, WholeBodySearchSpace
 from vamg_drake.robot import layout
+
+log = logging.getLogger(__name__)
 
 
 class FailureReason:
@@ -89,7 +98,18 @@ class PlannerConfig:
     """Whole-body planner parameters (loadable with `yaml_load_typed`).
 
     Attributes:
-        attempt_budget_s: time budget of one attempt [s].
+        attempt_budget_iterations: RRT-Connect iterations one attempt may
+            run over all its searches (along-path and fixed-base); used up,
+            the attempt ends with TIMEOUT. A work budget, not a time budget,
+            so that the plan is the same on any machine at any load. Most
+            plans of the 50 bench problems need none (the cheap stages
+            succeed) or 32-64; an attempt whose every search fails uses 1200
+            (~0.1 s on an idle machine); the cap stops the few attempts that
+            would run all twelve fixed-base searches to their limits.
+        attempt_wall_limit_s: wall-clock safety net of one attempt [s] (10x
+            the 0.2 s time budget this planner had before): past it the
+            attempt stops (or skips its B-spline smoothing) and the plan is
+            no longer reproducible, which is logged and counted.
         max_attempts: attempts (each with fresh random samples).
         seed: random seed; the same seed, problem and map give the same plan.
         turning_radius: minimum turning radius of the base curves [m].
@@ -129,7 +149,8 @@ class PlannerConfig:
             within the base's 0.35 m radius.
     """
 
-    attempt_budget_s: float = 0.2
+    attempt_budget_iterations: int = 1500
+    attempt_wall_limit_s: float = 2.0
     max_attempts: int = 3
     seed: int = 0
     turning_radius: float = 0.4
@@ -164,6 +185,10 @@ class PlanResult:
         timings: milliseconds per stage ("base", "arm", "refine", "total").
         attempts: attempts used.
         message: a human-readable detail of the failure.
+        rrt_iterations: RRT-Connect iterations run over all attempts.
+        wall_limit_hits: attempts stopped or cut short by the wall-clock
+            safety net (`PlannerConfig.attempt_wall_limit_s`); nonzero means
+            this result depends on the machine's speed.
     """
 
     success: bool
@@ -172,6 +197,8 @@ class PlanResult:
     timings: dict
     attempts: int = 0
     message: str = ""
+    rrt_iterations: int = 0
+    wall_limit_hits: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -182,6 +209,51 @@ class _BasePlan:
 
 class _Timeout(Exception):
     pass
+
+
+class _AttemptBudget:
+    """The work one attempt may do: RRT-Connect iterations over all its
+    searches (deterministic), and a wall-clock safety net whose firing is
+    remembered (`wall_hit`) because the outcome then depends on the machine."""
+
+    def __init__(self, iterations: int, wall_limit_s: float):
+        self.left = int(iterations)
+        self.used = 0
+        self.wall_deadline = time.perf_counter() + wall_limit_s
+        self.wall_hit = False
+
+    def past_wall_limit(self) -> bool:
+        """Whether the safety net has fired (remembered in `wall_hit`)."""
+        if not self.wall_hit and time.perf_counter() > self.wall_deadline:
+            self.wall_hit = True
+        return self.wall_hit
+
+    def check(self) -> None:
+        """Raises `_Timeout` when the iterations are used up or past the safety net."""
+        if self.left <= 0 or self.past_wall_limit():
+            raise _Timeout()
+
+    def run(self, search: RRTConnectSearch, iterations: int | None = None) -> np.ndarray | None:
+        """`search.run` for up to `iterations` more iterations (None: up to
+        its cap) within the budget: the path, or None (no path within its cap,
+        or paused after `iterations`); raises `_Timeout` when the budget ran
+        out first."""
+        cap = search.config.max_iterations - search.iteration
+        wanted = cap if iterations is None else min(iterations, cap)
+        allowed = min(wanted, max(self.left, 0))
+        before = search.iteration
+        path, why = search.run(allowed, self.wall_deadline)
+        spent = search.iteration - before
+        self.left -= spent
+        self.used += spent
+        if path is not None:
+            return path
+        if why == "timeout":
+            self.wall_hit = True
+            raise _Timeout()
+        if why == "iteration limit" and allowed < wanted:
+            raise _Timeout()
+        return None
 
 
 def _unwrap_toward(q_from: np.ndarray, q_to: np.ndarray) -> np.ndarray:
@@ -305,6 +377,9 @@ class WholeBodyPlanner:
         self._hybrid: HybridAStar | None = None
         self._bare: CollisionChecker | None = None
         self.travel = np.asarray(config.travel_torso_arm, dtype=float)
+        #: attempts of this planner's plans that the wall-clock safety net
+        #: stopped or cut short (`PlanResult.wall_limit_hits`, summed).
+        self.wall_limit_hits = 0
         # Loaded (or built, once per machine: ~2 s) now, not inside a plan.
         self._roadmap: ArmRoadmap | None = ArmRoadmap.for_checker(checker, self.travel)
         self.footprint, self.bands = self._travel_footprint(checker, self.travel, config.footprint_split_z)
@@ -387,6 +462,7 @@ class WholeBodyPlanner:
         whole_body_rrt.warm_up(WholeBodySearchSpace.fixed_base(self.checker, np.zeros(3)))
         poses = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.2]])
         whole_body_rrt.warm_up(WholeBodySearchSpace.along_path(self.checker, poses))
+        self._synchronized_path(poses, np.zeros((2, layout.NQ - 3)))
         self._base_planner(poses[0], poses[1]).warm_up()
 
     # -- validation ------------------------------------------------------------
@@ -554,9 +630,11 @@ class WholeBodyPlanner:
     def _plan_between(self, qs: np.ndarray, qg: np.ndarray, t0: float, timings: dict) -> PlanResult:
         """Plans between padded-free, validated configurations (qg unwrapped toward qs)."""
 
+        iterations = wall_hits = 0
+
         def fail(reason: str, message: str, attempts: int = 0) -> PlanResult:
             timings["total"] = 1e3 * (time.perf_counter() - t0)
-            return PlanResult(False, reason, None, timings, attempts, message)
+            return PlanResult(False, reason, None, timings, attempts, message, iterations, wall_hits)
 
         tc = time.perf_counter()
         self._base_planner(qs[:3], qg[:3])
@@ -570,18 +648,29 @@ class WholeBodyPlanner:
         reason, message = FailureReason.TIMEOUT, ""
         for attempt in range(self.config.max_attempts):
             rng = np.random.default_rng([self.config.seed, attempt])
-            deadline = time.perf_counter() + self.config.attempt_budget_s
+            budget = _AttemptBudget(self.config.attempt_budget_iterations, self.config.attempt_wall_limit_s)
             try:
-                path, reason, message = self._attempt(qs, qg, base_path, rng, deadline, timings)
+                path, reason, message = self._attempt(qs, qg, base_path, rng, budget, timings)
             except _Timeout:
-                path, reason, message = None, FailureReason.TIMEOUT, "attempt budget exceeded"
+                path, reason = None, FailureReason.TIMEOUT
+                message = (f"attempt stopped by the wall-clock safety net ({self.config.attempt_wall_limit_s} s)"
+                           if budget.wall_hit else
+                           f"attempt budget of {self.config.attempt_budget_iterations} RRT-Connect iterations used up")
                 timings["arm"] += 1e3 * (time.perf_counter() - self._stage_start)
+            iterations += budget.used
+            if budget.wall_hit:
+                wall_hits += 1
+                self.wall_limit_hits += 1
+                log.warning("WholeBodyPlanner: attempt %d %s by the wall-clock safety net (%.2f s): this plan "
+                            "depends on the machine's speed", attempt + 1,
+                            "cut short (no B-spline smoothing)" if path is not None else "stopped",
+                            self.config.attempt_wall_limit_s)
             if path is not None:
                 tr = time.perf_counter()
                 traj = smoothing.time_parametrize(path)
                 timings["refine"] += 1e3 * (time.perf_counter() - tr)
                 timings["total"] = 1e3 * (time.perf_counter() - t0)
-                return PlanResult(True, FailureReason.NONE, traj, timings, attempt + 1, "")
+                return PlanResult(True, FailureReason.NONE, traj, timings, attempt + 1, "", iterations, wall_hits)
         return fail(reason, message, attempt + 1)
 
     def _base_search(self, qa: np.ndarray, qb: np.ndarray):
@@ -601,21 +690,16 @@ class WholeBodyPlanner:
             return why
         return _BasePlan(path.poses, path.expansions)
 
-    def _attempt(self, qs, qg, base_path, rng, deadline, timings):
+    def _attempt(self, qs, qg, base_path, rng, budget: _AttemptBudget, timings):
         checker = self.checker
-
-        def check_deadline():
-            if time.perf_counter() > deadline:
-                raise _Timeout()
-
         tb = self._stage_start = time.perf_counter()
         if base_path is None:  # the base does not move
             ta = self._stage_start = time.perf_counter()
-            arm = self._arm_motion(qs[:3], qs[3:], qg[3:], rng, deadline)
+            arm = self._arm_motion(qs[:3], qs[3:], qg[3:], rng, budget)
             timings["arm"] += 1e3 * (time.perf_counter() - ta)
             if arm is None:
                 return None, FailureReason.NO_ARM_PATH, "no fixed-base arm path"
-            return self._refine([arm], timings, rng, deadline), "", ""
+            return self._refine([arm], timings, rng, budget), "", ""
         poses = base_path.poses
         if base_path.expansions > 0:
             poses = self._base_planner(qs[:3], qg[:3]).shortcut(poses, rng, self.config.base_shortcut_iterations)
@@ -623,7 +707,7 @@ class WholeBodyPlanner:
         goal_theta = poses[-1, 2]  # unwrapped heading at the end of the base path
         qg = qg.copy()
         qg[2] = goal_theta
-        check_deadline()
+        budget.check()
         ta = self._stage_start = time.perf_counter()
         # (a) arm interpolated in sync with the whole base path.
         Q = self._synchronized(poses, qs[3:], qg[3:])
@@ -634,49 +718,50 @@ class WholeBodyPlanner:
         # within a few states, and a free line would pay it twice.)
         if checker.first_collision(densify(Q, checker)) < 0:
             timings["arm"] += 1e3 * (time.perf_counter() - ta)
-            return self._refine([Q], timings, rng, deadline), "", ""
+            return self._refine([Q], timings, rng, budget), "", ""
         # (b) fold into the travel pose while driving, unfold while driving
         # (synchronized pieces only, no search).
         travel = _unwrap_toward(qs, np.concatenate([qs[:3], self.travel]))[3:]
-        path = self._via_carry(poses, qs, qg, travel, rng, deadline, search=False)
+        path = self._via_carry(poses, qs, qg, travel, rng, budget, search=False)
         if path is not None:
             timings["arm"] += 1e3 * (time.perf_counter() - ta)
-            return self._refine(path, timings, rng, deadline), "", ""
+            return self._refine(path, timings, rng, budget), "", ""
         # (c) RRT-Connect over (progress along the base path, torso + arm),
         # first for `along_path_first_iterations` (it usually connects within
         # a few dozen iterations; the hard problems hit the cap at ~70 us per
         # iteration)...
         along = {}
-        path = self._along_base_path(poses, qs[3:], qg[3:], rng, deadline, along,
+        path = self._along_base_path(poses, qs[3:], qg[3:], rng, budget, along,
                                      self.config.along_path_first_iterations)
         if path is not None:
             timings["arm"] += 1e3 * (time.perf_counter() - ta)
-            return self._refine([path], timings, rng, deadline), "", ""
+            return self._refine([path], timings, rng, budget), "", ""
         # (d) the same as (b) with fixed-base arm searches (lazy roadmap, then
         # RRT-Connect) at the start placement and at or before the goal.
-        path = self._via_carry(poses, qs, qg, travel, rng, deadline)
+        path = self._via_carry(poses, qs, qg, travel, rng, budget)
         if path is not None:
             timings["arm"] += 1e3 * (time.perf_counter() - ta)
-            return self._refine(path, timings, rng, deadline), "", ""
+            return self._refine(path, timings, rng, budget), "", ""
         # ... (c) resumed up to its iteration cap.
-        path = self._along_base_path(poses, qs[3:], qg[3:], rng, deadline, along)
+        path = self._along_base_path(poses, qs[3:], qg[3:], rng, budget, along)
         if path is not None:
             timings["arm"] += 1e3 * (time.perf_counter() - ta)
-            return self._refine([path], timings, rng, deadline), "", ""
+            return self._refine([path], timings, rng, budget), "", ""
         # (e) fold into another carry pose, drive, unfold, with fixed-base
         # arm searches at the start/goal placements: the goal arm (unfold at
         # the start), the start arm (unfold at the goal). Roll joints are
         # taken nearest to the start's so that the whole path stays unwrapped.
         carries = [qg[3:], qs[3:]]
         for carry in carries:
-            path = self._via_carry(poses, qs, qg, carry, rng, deadline)
+            path = self._via_carry(poses, qs, qg, carry, rng, budget)
             if path is not None:
                 timings["arm"] += 1e3 * (time.perf_counter() - ta)
-                return self._refine(path, timings, rng, deadline), "", ""
+                return self._refine(path, timings, rng, budget), "", ""
         timings["arm"] += 1e3 * (time.perf_counter() - ta)
         return None, FailureReason.NO_ARM_PATH, "no arm connection at any placement along the base path"
 
-    def _via_carry(self, poses, qs, qg, carry, rng, deadline, search: bool = True) -> list[np.ndarray] | None:
+    def _via_carry(self, poses, qs, qg, carry, rng, budget: _AttemptBudget,
+                   search: bool = True) -> list[np.ndarray] | None:
         """Pieces: fold qs->carry (synchronized over the first part of the base
         path, or at the start placement), drive holding carry, unfold
         carry->qg (synchronized over the last part, or at the goal placement).
@@ -695,10 +780,6 @@ class WholeBodyPlanner:
         def free(Q):
             return checker.first_collision(densify(Q, checker)) < 0
 
-        def check_deadline():
-            if time.perf_counter() > deadline:
-                raise _Timeout()
-
         roadmap = self._arm_roadmap() if self._is_travel(carry) else None
         cum = self._fraction_cum(poses)
         pieces = []
@@ -710,7 +791,7 @@ class WholeBodyPlanner:
             depart = None  # driving off holding the start arm
             for W in folds:
                 for f in cfg.fold_fractions:
-                    check_deadline()
+                    budget.check()
                     k = self._index_at_fraction(poses, f, cum) if f > 0.0 else 0
                     Qf = self._synchronized_path(poses[: k + 1], W)
                     if free(Qf):
@@ -729,8 +810,8 @@ class WholeBodyPlanner:
                 if fold is not None:
                     break
             if fold is None:
-                check_deadline()
-                arm = self._arm_motion(poses[0], qs[3:], carry, rng, deadline, search=search)
+                budget.check()
+                arm = self._arm_motion(poses[0], qs[3:], carry, rng, budget, search=search)
                 fold = None if arm is None else [arm]
             if fold is None:
                 return None
@@ -748,7 +829,7 @@ class WholeBodyPlanner:
 
         for W in unfolds:
             for f in fractions:
-                check_deadline()
+                budget.check()
                 k = last if f >= 1.0 else max(self._index_at_fraction(poses, f, cum), fold_k)
                 drive = drive_to(k)
                 if drive is None:
@@ -769,8 +850,8 @@ class WholeBodyPlanner:
                     Qa[:, 3:] += W[-1] - qg[3:]  # whole turns, if W ends so
                     return pieces + [drive, Qu, Qa]
         if needs_unfold and drive_to(last) is not None:
-            check_deadline()
-            arm = self._arm_motion(poses[-1], carry, qg[3:], rng, deadline, search=search)
+            budget.check()
+            arm = self._arm_motion(poses[-1], carry, qg[3:], rng, budget, search=search)
             if arm is not None:
                 return pieces + [drive_to(last), arm]
         if needs_unfold and search:
@@ -782,8 +863,8 @@ class WholeBodyPlanner:
                 k = max(self._index_at_fraction(poses, f, cum), fold_k)
                 if k >= last or not hold.free(fold_k, k) or not approach.free(k, last):
                     continue
-                check_deadline()
-                arm = self._arm_motion(poses[k], carry, qg[3:], rng, deadline, search=True)
+                budget.check()
+                arm = self._arm_motion(poses[k], carry, qg[3:], rng, budget, search=True)
                 if arm is not None:
                     Qa = approach.states(k, last)
                     Qa[:, 3:] += arm[-1, 3:] - qg[3:]  # whole turns, if the arm path ended so
@@ -865,7 +946,7 @@ class WholeBodyPlanner:
         return np.concatenate([poses, arm], axis=1)
 
     def _along_base_path(self, poses: np.ndarray, arm_a: np.ndarray, arm_b: np.ndarray, rng,
-                         deadline, search: dict, iterations: int | None = None) -> np.ndarray | None:
+                         budget: _AttemptBudget, search: dict, iterations: int | None = None) -> np.ndarray | None:
         """Whole-body states (N, 11) that follow the base path `poses` while
         the torso/arm moves from arm_a to arm_b, or None.
 
@@ -895,10 +976,8 @@ class WholeBodyPlanner:
         rrt = search["rrt"]
         if rrt is None:
             return None
-        path, why = rrt.run(iterations, deadline)
+        path = budget.run(rrt, iterations)
         if path is None:
-            if why == "timeout":
-                raise _Timeout()
             return None
         space = rrt.space
         if path.shape[0] > 2:
@@ -910,7 +989,7 @@ class WholeBodyPlanner:
     def _rrt_config(self) -> KernelRRTConfig:
         return KernelRRTConfig(step=self.config.rrt_step, max_iterations=self.config.rrt_max_iterations)
 
-    def _arm_motion(self, base: np.ndarray, arm_a: np.ndarray, arm_b: np.ndarray, rng, deadline,
+    def _arm_motion(self, base: np.ndarray, arm_a: np.ndarray, arm_b: np.ndarray, rng, budget: _AttemptBudget,
                     search: bool = True):
         """A fixed-base torso+arm path as whole-body states (N, 11), or None:
         the straight motion; with `search` then the arm roadmap searched
@@ -929,8 +1008,7 @@ class WholeBodyPlanner:
         path = self._arm_roadmap().connect(arm_a, arm_b, state_free, space.motion_free)
         if path is not None:
             return space.to_configurations(path)
-        if time.perf_counter() > deadline:
-            raise _Timeout()
+        budget.check()
         lo = layout.SAMPLE_LOWER[3:]
         hi = layout.SAMPLE_UPPER[3:]
         # Continuous joints: one turn around the ends' midpoint (the ends are
@@ -940,21 +1018,20 @@ class WholeBodyPlanner:
         lo = np.where(c, mid - np.pi, lo)
         hi = np.where(c, mid + np.pi, hi)
         w = np.where(np.arange(8) == 0, 5.0, 1.0)  # torso metres weigh more
-        path, why = space.rrt_connect(arm_a, arm_b, lo, hi, w, rng, self._rrt_config(), deadline)
+        path = budget.run(RRTConnectSearch(space, arm_a, arm_b, lo, hi, w, rng, self._rrt_config()))
         if path is None:
-            if why == "timeout":
-                raise _Timeout()
             return None
         if path.shape[0] > 2:
             path = smoothing.shortcut(path, space.motion_free, rng, self.config.arm_shortcut_iterations)
         return space.to_configurations(path)
 
-    def _refine(self, pieces: list[np.ndarray], timings, rng, deadline) -> np.ndarray | None:
+    def _refine(self, pieces: list[np.ndarray], timings, rng, budget: _AttemptBudget) -> np.ndarray | None:
         """Smooths fixed-base pieces, joins and densifies.
 
         Every piece was validated at the checker's motion resolution, and a
         smoothed piece replaces it only after its own dense validation, so the
         joined dense path is valid without a second pass over all of it.
+        Past the wall-clock safety net the smoothing is skipped (recorded).
         """
         tr = time.perf_counter()
         checker = self.checker
@@ -962,7 +1039,7 @@ class WholeBodyPlanner:
         end = None  # the joined path's last waypoint (a one-waypoint piece adds none)
         for P in pieces:
             fixed_base = np.all(np.abs(P[:, :3] - P[0, :3]) < 1e-12)
-            if fixed_base and P.shape[0] > 2 and time.perf_counter() < deadline:
+            if fixed_base and P.shape[0] > 2 and not budget.past_wall_limit():
                 P = smoothing.smooth_if_free(
                     P, lambda S: checker.first_collision(densify(S, checker)) < 0,
                     self.config.bspline_samples)

@@ -17,8 +17,9 @@ where no sphere centre moves more than the checker's motion resolution (the
 per-coordinate lever bounds), coarse-to-fine, early exit.
 
 Random numbers are drawn up front from the caller's generator, so the same
-seed gives the same tree. The iteration cap bounds the work; the wall-clock
-deadline is checked between chunks of iterations.
+seed gives the same tree. The iteration cap bounds the work (deterministic);
+an optional wall-clock deadline, the planner's safety net, is checked between
+chunks of iterations.
 """
 
 import dataclasses
@@ -188,7 +189,7 @@ class KernelRRTConfig:
         max_iterations: iteration cap (bounds the work deterministically).
         goal_bias: probability of sampling the other tree's root.
         capacity: nodes per tree.
-        chunk: iterations between deadline checks.
+        chunk: iterations between wall-clock deadline checks.
     """
 
     step: float = 0.6

@@ -434,6 +434,17 @@ class MotionSupervisor:
     def _plan(self, goal: SubgoalCommand, q: np.ndarray, t: float, revision: int) -> PlannedTrajectory:
         self.last_replan_time = t
         t0 = time.perf_counter()
+        wall_hits = self.planner.wall_limit_hits
+        try:
+            return self._plan_goal(goal, q, t, revision, t0)
+        finally:
+            if self.timings is not None:
+                # Attempts the planner's wall-clock safety net stopped: the
+                # episode is not reproducible when this module appears.
+                for _ in range(self.planner.wall_limit_hits - wall_hits):
+                    self.timings.add("planner_wall_limit", 1e3 * (time.perf_counter() - t0))
+
+    def _plan_goal(self, goal: SubgoalCommand, q: np.ndarray, t: float, revision: int, t0: float) -> PlannedTrajectory:
         approach_index = -1
         try:
             if self.before_planning is not None:
