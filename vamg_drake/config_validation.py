@@ -283,7 +283,7 @@ _POSITIVE = re.compile(
 _POSITIVE_INT = re.compile(
     r"^(width|height|max_attempts|num_\w+|max_points|samples_per_base|max_candidates|rrt_max_iterations"
     r"|hybrid_astar_max_expansions|lookahead_waypoints|max_resampled_waypoints|n_diverse|normal_neighbours"
-    r"|max_total_failures|max_motion_failures|top_down_yaws|bspline_samples|attempt_budget_iterations)$")
+    r"|max_total_failures|max_motion_failures|bspline_samples|attempt_budget_iterations)$")
 #: (min field, max field) pairs that must be ordered, in the same sub-config.
 _ORDERED = (("depth_min", "depth_max"), ("pan_min", "pan_max"), ("tilt_min", "tilt_max"), ("z_min", "z_max"))
 #: Float fields that may be negative (offsets, angles, heights relative to something).
