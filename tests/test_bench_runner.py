@@ -222,6 +222,8 @@ def test_resume_retry_errors_reruns_error_records_and_counts_each_key_once(smoke
     suite = materialize_suite(SUITES["smoke"], smoke_root, progress=False)
     specs = episode_specs(suite, load_methods(["scripted"]), 1)
     run_sweep(specs, tmp_path, episode_fn=bench_faults.raising_episode, progress=False)
+    report = write_report(tmp_path).read_text()
+    assert f"- `{specs[0].key}`: RuntimeError: boom in {specs[0].key}" in report  # the exception, not "Traceback"
     # A plain resume treats errors as finished ...
     assert run_sweep(specs, tmp_path, resume=True, episode_fn=bench_faults.quick_episode, progress=False) == []
     # ... --retry-errors runs them again.

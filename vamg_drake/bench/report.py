@@ -336,6 +336,12 @@ def plot_compute_cost(rows: list[dict], path: str | Path) -> None:
 # ------------------------------------------------------------------ report
 
 
+def _last_line(text: str) -> str:
+    """The last non-empty line of an error (a traceback's exception)."""
+    lines = [line.strip() for line in text.strip().splitlines() if line.strip()]
+    return lines[-1] if lines else ""
+
+
 def _pct(x: float) -> str:
     return "–" if math.isnan(x) else f"{x:.2f}"
 
@@ -439,7 +445,9 @@ def write_report(directory: str | Path) -> Path:
     lines += failed_episode_lines(records, directory)
     errors = [r for r in records if r.get("error")]
     if errors:
-        lines += ["## Harness errors", ""] + [f"- `{r['key']}`: {r['error'].splitlines()[0] if r['error'] else ''}" for r in errors[:50]] + [""]
+        lines += ["## Errors", "", "Episodes that raised (a bug, not a paper category; the traceback is in `results.jsonl` "
+                  "and the episode's `episode.json`):", ""]
+        lines += [f"- `{r['key']}`: {_last_line(r['error'])}" for r in errors[:50]] + [""]
     out = directory / "report.md"
     atomic_write_text(out, "\n".join(lines))
     return out

@@ -366,7 +366,8 @@ def run_sweep(
                 written.append(record)
                 bar.update(record)
                 if record.status == ERROR:
-                    log.warning("%s: %s", record.key, record.error.splitlines()[0] if record.error else "error")
+                    lines = [line for line in record.error.strip().splitlines() if line.strip()]
+                    log.warning("%s: error: %s", record.key, lines[-1].strip() if lines else "")
 
             try:
                 if backend == "ray":
