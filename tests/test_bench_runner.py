@@ -302,7 +302,7 @@ def test_a_killed_sweep_leaves_no_worker_running(tmp_path, sig):
         assert len(workers) == 2, "the sweep never started its workers"
         time.sleep(1.0)
         os.kill(proc.pid, sig)  # the sweep only, not its process group
-        proc.wait(timeout=30)
+        assert proc.wait(timeout=30) == (-sig if sig == signal.SIGKILL else 128 + sig)
         deadline = time.time() + 15
         while time.time() < deadline and any(_alive(p) for p in workers):
             time.sleep(0.2)

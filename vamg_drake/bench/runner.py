@@ -389,8 +389,9 @@ def _to_run(spec: EpisodeSpec, latest: dict | None, retry_errors: bool) -> bool:
     return retry_errors and latest.get("status") == ERROR
 
 
-class _StopSweep(BaseException):
-    """Raised in the main thread by SIGTERM / SIGHUP: the sweep stops, its workers are killed."""
+class _StopSweep(SystemExit):
+    """Raised in the main thread by SIGTERM / SIGHUP: the sweep stops, its
+    workers are killed, and the process exits with 128 + the signal number."""
 
 
 @contextlib.contextmanager
@@ -400,7 +401,9 @@ def _stop_workers_on_signals():
     previous = {}
     if threading.current_thread() is threading.main_thread():
         def stop(signum, frame):
-            raise _StopSweep(f"stopped by signal {signal.Signals(signum).name}")
+            log.warning("sweep stopped by %s; killing its workers (finished episodes are kept, "
+                        "--resume continues)", signal.Signals(signum).name)
+            raise _StopSweep(128 + signum)
 
         for sig in (signal.SIGTERM, signal.SIGHUP):
             previous[sig] = signal.signal(sig, stop)
