@@ -8,8 +8,10 @@ The full system (``policy: full``, the default)::
       depth, X_WC, target ─► TargetCloud ─► target_cloud
       point_map, q, target, motion_feedback, target_cloud ─► SubgoalPolicy ─► goal, phase, gripper_command
       goal, point_map, q, target ─► WholeBodyPlanner ─► timed_trajectory, motion_feedback
-      timed_trajectory, q ─► WholeBodyTracker (20 Hz) ─► base_velocity, joint_velocity
-      timed_trajectory, q, target ─► GazeOptimizer (10 Hz) ─► head_command
+      depth, X_WC ─► SeenSpace (10 Hz) ─► seen_space
+      timed_trajectory, q, seen_space ─► WholeBodyTracker (20 Hz) ─► base_velocity, joint_velocity,
+                                                               trajectory_time, look_request
+      timed_trajectory, trajectory_time, look_request, q, target ─► GazeOptimizer (10 Hz) ─► head_command
       velocities, head, gripper ─► RobotCommandIntegrator ─► plant desired state
       phase, q ─► DynamicObstacleDriver ─► obstacle desired states
       EpisodeMonitor (collision / success / policy and planner verdicts / time limit) ─► outcome
@@ -36,6 +38,7 @@ from pydrake.systems.primitives import ConstantVectorSource
 from vamg_drake.control.whole_body_tracker import TrackerConfig
 from vamg_drake.perception.gaze import GazeConfig
 from vamg_drake.perception.raycast_map import RayCastMapConfig
+from vamg_drake.perception.seen_space import LookGateConfig, SeenSpaceConfig
 from vamg_drake.policy.behaviour_tree import BehaviourConfig
 from vamg_drake.policy.strategies import apply_strategy_defaults
 from vamg_drake.policy.subgoal_pipeline import SubgoalPipelineConfig
@@ -48,6 +51,7 @@ from vamg_drake.systems.raycast_map_system import RayCastMap
 from vamg_drake.systems.robot_command import RobotCommandIntegrator
 from vamg_drake.systems.robot_state import RobotStateSelector
 from vamg_drake.systems.scripted_driver import ScriptedDriver, ScriptedDriverConfig
+from vamg_drake.systems.seen_space_system import SeenSpace
 from vamg_drake.systems.subgoal_policy_system import SubgoalPolicyConfig, make_subgoal_policy
 from vamg_drake.systems.target_cloud import TargetCloud, TargetCloudConfig
 from vamg_drake.systems.timing import ModuleTimings
@@ -86,6 +90,8 @@ class DiagramConfig:
         target_cloud: the dense cloud around the target (grasp candidates).
         planner: the WholeBodyPlanner system.
         tracker: the 20 Hz whole-body tracker.
+        seen_space: the seen-floor grid (its depth range and crop follow `map.depth`).
+        look: the tracker's look-before-you-leave rule (the base does not enter unseen cells).
         scripted: the scripted driver.
         waypoints: scripted waypoints [[x, y], ...]; empty = towards the target, stopping short.
         command_period: period of the command integrator [s].
@@ -108,6 +114,8 @@ class DiagramConfig:
     target_cloud: TargetCloudConfig = dc.field(default_factory=TargetCloudConfig)
     planner: PlannerSystemConfig = dc.field(default_factory=PlannerSystemConfig)
     tracker: TrackerConfig = dc.field(default_factory=TrackerConfig)
+    seen_space: SeenSpaceConfig = dc.field(default_factory=SeenSpaceConfig)
+    look: LookGateConfig = dc.field(default_factory=LookGateConfig)
     scripted: ScriptedDriverConfig = dc.field(default_factory=ScriptedDriverConfig)
     waypoints: list[list[float]] = dc.field(default_factory=list)
     command_period: float = 0.01
@@ -153,6 +161,7 @@ class EpisodeDiagram:
     planner: PlannerSystem | None = None
     tracker: WholeBodyTracker | None = None
     gaze: GazeOptimizer | None = None
+    seen_space: SeenSpace | None = None
     visualizer: MeshcatVisualizer | None = None
 
 
@@ -267,7 +276,15 @@ def _add_full_system(builder: DiagramBuilder, ed: EpisodeDiagram, scenario: Scen
         config.subgoal, config.behaviour, config.policy_system, seed=config.seed, timings=timings,
         strategy=config.strategy))
     planner = builder.AddNamedSystem("planner", PlannerSystem(_seeded_planner_config(config), timings=timings))
-    tracker = builder.AddNamedSystem("tracker", WholeBodyTracker(config.tracker))
+    tracker = builder.AddNamedSystem("tracker", WholeBodyTracker(config.tracker, config.look))
+    depth_range = config.map.depth
+    seen = builder.AddNamedSystem("seen_space", SeenSpace(
+        world.intrinsics, [scenario.robot_start.x, scenario.robot_start.y],
+        dc.replace(config.seen_space, depth_min=depth_range.depth_min, depth_max=depth_range.depth_max,
+                   crop_radius=depth_range.crop_radius), period))
+    builder.Connect(depth_image, seen.GetInputPort("depth_image"))
+    builder.Connect(X_WC, seen.GetInputPort("X_WC"))
+    builder.Connect(q, seen.GetInputPort("robot_configuration"))
     gaze = builder.AddNamedSystem("gaze", GazeOptimizer(world.intrinsics, config.gaze, period, timings=timings,
                                                         start_sweep=config.start_sweep))
 
@@ -285,7 +302,10 @@ def _add_full_system(builder: DiagramBuilder, ed: EpisodeDiagram, scenario: Scen
     trajectory = planner.GetOutputPort("timed_trajectory")
     builder.Connect(trajectory, tracker.GetInputPort("trajectory"))
     builder.Connect(q, tracker.GetInputPort("robot_configuration"))
+    builder.Connect(seen.GetOutputPort("seen_space"), tracker.GetInputPort("seen_space"))
     builder.Connect(trajectory, gaze.GetInputPort("trajectory"))
+    builder.Connect(tracker.GetOutputPort("trajectory_time"), gaze.GetInputPort("trajectory_time"))
+    builder.Connect(tracker.GetOutputPort("look_request"), gaze.GetInputPort("look_request"))
     builder.Connect(q, gaze.GetInputPort("robot_configuration"))
     builder.Connect(target.get_output_port(), gaze.GetInputPort("target"))
 
@@ -299,6 +319,7 @@ def _add_full_system(builder: DiagramBuilder, ed: EpisodeDiagram, scenario: Scen
     builder.Connect(policy.GetOutputPort("goal"), ed.monitor.GetInputPort("policy_goal"))
     builder.Connect(planner.GetOutputPort("trajectory"), ed.monitor.GetInputPort("planner_status"))
     ed.policy, ed.point_map, ed.planner, ed.tracker, ed.gaze = policy, point_map, planner, tracker, gaze
+    ed.seen_space = seen
 
 
 def _seeded_planner_config(config: DiagramConfig) -> PlannerSystemConfig:

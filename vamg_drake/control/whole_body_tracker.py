@@ -227,6 +227,7 @@ class TrackerStatus:
     STALLED = "stalled"  # at the final waypoint's reference, outside tolerance, not moving (zero command)
     REJECTED = "rejected"  # the last trajectory was rejected (zero command)
     INVALID_STATE = "invalid_state"  # q_now malformed (zero command)
+    WAITING = "waiting"  # holding until the base's next stretch of path has been seen (zero command)
 
 
 @dc.dataclass(frozen=True, eq=False)
@@ -434,6 +435,10 @@ class WholeBodyTrackerCore:
     def resampled(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(times (M,), q (M, 11)) of the resampled reference, or None."""
         return None if self._qs is None else (self._ts, self._qs)
+
+    def base_path_ahead(self) -> np.ndarray:
+        """(K, 3) base poses (x, y, theta) of the resampled path from the nearest sample on (empty without a path)."""
+        return np.empty((0, 3)) if self._qs is None else self._qs[self._nearest:, :3]
 
     def clear(self) -> None:
         """Drops the trajectory; the command is zero until a new one arrives."""

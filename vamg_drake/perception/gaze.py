@@ -74,6 +74,10 @@ class GazeConfig:
     target_radius: float = 0.15
     #: Lattice spacing [m] of the points filling the target ball.
     target_spacing: float = 0.05
+    #: Looking at requested points, a gaze that sees at least this fraction of the best
+    #: gaze's points and lies closer to the current head command wins (the head moves at
+    #: its rate limit: swinging across for a few more points costs more than it sees).
+    look_score_fraction: float = 0.8
 
     def __post_init__(self) -> None:
         self.validate()
@@ -94,6 +98,8 @@ class GazeConfig:
             raise ValueError("GazeConfig: lookahead_waypoints must be >= 1 and waypoint_dt > 0")
         if not (self.target_radius >= 0.0 and self.target_spacing > 0.0):
             raise ValueError("GazeConfig: target_radius must be >= 0 and target_spacing > 0")
+        if not 0.0 < self.look_score_fraction <= 1.0:
+            raise ValueError(f"GazeConfig.look_score_fraction must be in (0, 1], got {self.look_score_fraction}")
 
 
 @dc.dataclass(frozen=True, eq=False)
@@ -231,6 +237,19 @@ class GazeOptimizer:
         )
 
 
+    def choose_near(self, field: ImportanceField, X_WC: np.ndarray, head: np.ndarray) -> GazeDecision:
+        """Among the candidates that see at least `look_score_fraction` of the best
+        score, the one closest (max-norm) to the head command `head` (pan, tilt)."""
+        decision = self.choose(field, X_WC)
+        if not decision.sees_importance:
+            return decision
+        s = decision.scores
+        good = np.flatnonzero(s >= self.config.look_score_fraction * s.max())
+        k = int(good[np.argmin(np.abs(self.candidates[good] - np.asarray(head, float)[None]).max(axis=1))])
+        return GazeDecision(index=k, pan=float(self.candidates[k, 0]), tilt=float(self.candidates[k, 1]),
+                            score=float(s[k]), scores=s, sees_importance=True)
+
+
 def frustum_scores_reference(
     points: np.ndarray, weights: np.ndarray, X_WC: np.ndarray, intrinsics: CameraIntrinsics, depth_min: float, depth_max: float
 ) -> np.ndarray:
@@ -319,9 +338,16 @@ def decide_fetch_gaze(
     sweep=None,
     t_now: float = 0.0,
     cameras: FetchGazeCameras | None = None,
+    look_points: np.ndarray | None = None,
+    head_now: np.ndarray | None = None,
 ) -> GazeDecision:
     """One gaze decision for the Fetch (its kinematics and sphere model).
 
+    Look requests come first, in every variant: while the tracker holds the
+    robot for unseen cells on its path (`look_points`, weight 1 each), the
+    gaze that sees most of them wins (the robot stands still, so the
+    velocity-weighted window would give them no weight), preferring one
+    near the current head command `head_now` (`GazeOptimizer.choose_near`).
     Executing (a `TrajectorySweep` is given and the variant is not
     ``target_only``): the body points are the robot's sphere centres along the
     look-ahead window of the sweep, every `waypoint_dt`. Otherwise the target
@@ -335,12 +361,20 @@ def decide_fetch_gaze(
         sweep: the executing trajectory's `TrajectorySweep`, or None while planning.
         t_now: current progress on the trajectory's clock [s].
         cameras: cached candidate camera poses (made here when None).
+        look_points: (M, 3) points the tracker waits to see, or None / empty.
+        head_now: (2,) the current head command (pan, tilt), or None.
     """
     q_now = np.asarray(q_now, dtype=float).reshape(layout.NQ)
     if not np.all(np.isfinite(q_now)):
         raise ValueError("decide_fetch_gaze: q_now contains NaN or inf")
     cameras = cameras or FetchGazeCameras(optimizer.candidates)
     X_WC = cameras.poses(q_now)
+    if look_points is not None and len(look_points):
+        points = np.asarray(look_points, dtype=float).reshape(-1, 3)
+        field = ImportanceField(points, np.ones(points.shape[0]))
+        decision = optimizer.choose(field, X_WC) if head_now is None else optimizer.choose_near(field, X_WC, head_now)
+        if decision.sees_importance:
+            return decision
     if sweep is not None and optimizer.config.variant != "target_only":
         stride = max(1, int(round(optimizer.config.waypoint_dt / sweep.dt)))
         body, speed = sweep.window(t_now, optimizer.config.lookahead_waypoints, stride)

@@ -29,12 +29,18 @@ class GazeOptimizer(LeafSystem):
         - trajectory_time (1-vector, optional: progress on the trajectory's clock)
         - target (3-vector p_WT, optional; NaN = no target)
         - robot_configuration (11-vector q)
+        - look_request ((M, 3) array, optional: unseen points the tracker waits for)
         output_ports:
         - head_command (2-vector: pan, tilt [rad])
 
-    Progress defaults to the context time (the planner's trajectories are
-    shifted onto the simulation clock). A rejected input (NaN configuration,
-    malformed trajectory) is logged and the previous command is held.
+    The look-ahead window starts at `trajectory_time`, the tracker's progress
+    (the time of its nearest path point): the robot falls behind the clock
+    when it waits or slows down, and the window must not run ahead of it.
+    Unconnected or NaN, progress is the context time (the planner's
+    trajectories are shifted onto the simulation clock). A non-empty
+    `look_request` overrides the window (`decide_fetch_gaze`). A rejected
+    input (NaN configuration, malformed trajectory) is logged and the
+    previous command is held.
 
     With ``start_sweep`` > 0 the head first looks left, then right (at
     ``sweep_tilt``) for that long, so the first plans know the room beside
@@ -53,6 +59,7 @@ class GazeOptimizer(LeafSystem):
         self._time_port = self.DeclareVectorInputPort("trajectory_time", 1)
         self._target_port = self.DeclareVectorInputPort("target", 3)
         self._q_port = self.DeclareVectorInputPort("robot_configuration", layout.NQ)
+        self._look_port = self.DeclareAbstractInputPort("look_request", AbstractValue.Make(np.empty((0, 3))))
         # The trajectory's sweep (sphere FK once per trajectory), recomputed only when the input changes.
         self._sweep_cache = self.DeclareCacheEntry(
             "trajectory_sweep",
@@ -86,11 +93,15 @@ class GazeOptimizer(LeafSystem):
         if self._target_port.HasValue(context):
             p = np.asarray(self._target_port.Eval(context), dtype=float)
             target = p if np.all(np.isfinite(p)) else None
-        t_now = float(self._time_port.Eval(context)[0]) if self._time_port.HasValue(context) else context.get_time()
+        t_now = float(self._time_port.Eval(context)[0]) if self._time_port.HasValue(context) else np.nan
+        if not np.isfinite(t_now):
+            t_now = context.get_time()
+        look = self._look_port.Eval(context) if self._look_port.HasValue(context) else None
         t0 = time.perf_counter()
         try:
             sweep = self._sweep_cache.Eval(context)
-            decision = decide_fetch_gaze(self._core, q, target, sweep, t_now, self._cameras)
+            head = context.get_discrete_state(self._command_index).get_value()
+            decision = decide_fetch_gaze(self._core, q, target, sweep, t_now, self._cameras, look, head)
             if self._timings is not None:
                 self._timings.add("gaze", 1e3 * (time.perf_counter() - t0))
         except ValueError as e:

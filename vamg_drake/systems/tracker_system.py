@@ -1,6 +1,7 @@
 """WholeBodyTracker: the LeafSystem adapter over
 `vamg_drake.control.whole_body_tracker.WholeBodyTrackerCore`."""
 
+import dataclasses as dc
 import logging
 
 import numpy as np
@@ -8,6 +9,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem
 
 from vamg_drake.control.whole_body_tracker import TrackerCommand, TrackerConfig, TrackerStatus, WholeBodyTrackerCore
+from vamg_drake.perception.seen_space import LookGateConfig, SeenGrid, unseen_footprint
 from vamg_drake.robot import layout
 from vamg_drake.systems.robot_command import BASE_VELOCITY_SIZE, JOINT_VELOCITY_SIZE
 
@@ -28,6 +30,19 @@ def _unwrap_trajectory(value):
     return value
 
 
+@dc.dataclass(frozen=True, eq=False)
+class LookGate:
+    """The look-before-you-leave state of the loaded trajectory.
+
+    Attributes:
+        waited: how long the robot has held for unseen cells on this trajectory [s].
+        points: (M, 3) probe points of the unseen cells it holds for now (empty: driving).
+    """
+
+    waited: float = 0.0
+    points: np.ndarray = dc.field(default_factory=lambda: np.empty((0, 3)))
+
+
 class WholeBodyTracker(LeafSystem):
     """The 20 Hz whole-body path tracker (closed-form one-step MPC).
 
@@ -37,10 +52,13 @@ class WholeBodyTracker(LeafSystem):
         input_ports:
         - trajectory (TimedTrajectory, PlannedTrajectory or None)
         - robot_configuration (11-vector q)
+        - seen_space (SeenGrid, optional)
         output_ports:
         - base_velocity (2-vector (v, w))
         - joint_velocity (8-vector: torso + 7 arm rates)
         - tracking (TrackerCommand)
+        - trajectory_time (1-vector: trajectory time of the nearest path point; NaN without one)
+        - look_request ((M, 3) array: the unseen points the robot waits for; empty while driving)
 
     Every `config.period` seconds a periodic unrestricted update reads q, loads
     the trajectory when its identity changed (`set_trajectory`; a rejected one
@@ -50,21 +68,38 @@ class WholeBodyTracker(LeafSystem):
     `RobotCommandIntegrator`'s ports of the same names. An unconnected
     trajectory port, or None, means no trajectory: zero command, ``idle``.
 
+    Look before you leave: with `seen_space` connected and ``look.enabled``,
+    the robot holds (zero command, status ``waiting``) while the base footprint
+    on the next ``look.lookahead_distance`` of the path covers floor cells the
+    camera has not seen (`unseen_footprint`), and `look_request` lists them for
+    the gaze. Each trajectory may hold at most ``look.max_wait`` seconds in
+    all (a cell can stay occluded). The gate's state is in the Context.
+
     The core (the loaded path and its progress) lives in the system object:
     use one Context per system instance. It is reset by the initialization event.
     """
 
-    def __init__(self, config: TrackerConfig | None = None):
+    def __init__(self, config: TrackerConfig | None = None, look: LookGateConfig | None = None):
         super().__init__()
         self._config = config or TrackerConfig()
+        self._look = look or LookGateConfig()
+        self._look.validate()
         self._core = WholeBodyTrackerCore(self._config)
         self._trajectory_port = self.DeclareAbstractInputPort("trajectory", AbstractValue.Make(None))
         self._q_port = self.DeclareVectorInputPort("robot_configuration", layout.NQ)
+        self._seen_port = self.DeclareAbstractInputPort("seen_space", AbstractValue.Make(None))
         self._u_index = self.DeclareDiscreteState(BASE_VELOCITY_SIZE + JOINT_VELOCITY_SIZE)
         self._tracking_index = self.DeclareAbstractState(AbstractValue.Make(TrackerCommand()))
+        self._gate_index = self.DeclareAbstractState(AbstractValue.Make(LookGate()))
         self.DeclareStateOutputPort("tracking", self._tracking_index)
-        self.DeclareVectorOutputPort("base_velocity", BASE_VELOCITY_SIZE, self._calc_base_velocity)
-        self.DeclareVectorOutputPort("joint_velocity", JOINT_VELOCITY_SIZE, self._calc_joint_velocity)
+        self.DeclareVectorOutputPort("base_velocity", BASE_VELOCITY_SIZE, self._calc_base_velocity,
+                                     {self.discrete_state_ticket(self._u_index)})
+        self.DeclareVectorOutputPort("joint_velocity", JOINT_VELOCITY_SIZE, self._calc_joint_velocity,
+                                     {self.discrete_state_ticket(self._u_index)})
+        self.DeclareVectorOutputPort("trajectory_time", 1, self._calc_trajectory_time,
+                                     {self.abstract_state_ticket(self._tracking_index)})
+        self.DeclareAbstractOutputPort("look_request", lambda: AbstractValue.Make(np.empty((0, 3))),
+                                       self._calc_look_request, {self.abstract_state_ticket(self._gate_index)})
         self.DeclareInitializationUnrestrictedUpdateEvent(self._initialize)
         self.DeclarePeriodicUnrestrictedUpdateEvent(self._config.period, 0.0, self._update)
         self._loaded = None  # the trajectory object loaded into the core (identity)
@@ -80,6 +115,7 @@ class WholeBodyTracker(LeafSystem):
     def _initialize(self, context, state) -> EventStatus:
         self._core.clear()
         self._loaded = None
+        state.get_mutable_abstract_state(self._gate_index).set_value(LookGate())
         return EventStatus.Succeeded()
 
     def _load(self, trajectory, q: np.ndarray) -> None:
@@ -104,15 +140,51 @@ class WholeBodyTracker(LeafSystem):
         q = np.asarray(self._q_port.Eval(context), dtype=float)
         value = self._trajectory_port.Eval(context) if self._trajectory_port.HasValue(context) else None
         trajectory = _unwrap_trajectory(value)
+        gate = context.get_abstract_state(self._gate_index).get_value()
         if trajectory is not self._loaded:
             self._load(trajectory, q)
+            gate = LookGate()
         previous = context.get_abstract_state(self._tracking_index).get_value()
         command = self._core.command(q)
         if command.status == TrackerStatus.INVALID_STATE and previous.status != TrackerStatus.INVALID_STATE:
             _log.warning("WholeBodyTracker: %s; commanding zero", command.reason)
+        gate = self._gate(context, q, command, gate)
+        if gate.points.shape[0]:
+            command = dc.replace(command, base_velocity=np.zeros(BASE_VELOCITY_SIZE),
+                                 joint_velocity=np.zeros(JOINT_VELOCITY_SIZE), status=TrackerStatus.WAITING,
+                                 reason=f"{gate.points.shape[0]} unseen cells on the path ahead")
+        state.get_mutable_abstract_state(self._gate_index).set_value(gate)
         state.get_mutable_discrete_state(self._u_index).set_value(command.u)
         state.get_mutable_abstract_state(self._tracking_index).set_value(command)
         return EventStatus.Succeeded()
+
+    def _gate(self, context, q: np.ndarray, command: TrackerCommand, gate: LookGate) -> LookGate:
+        """The gate after this tick: the unseen cells to wait for (none once `max_wait` is spent)."""
+        look = self._look
+        if (not look.enabled or command.status != TrackerStatus.TRACKING or gate.waited >= look.max_wait
+                or not self._seen_port.HasValue(context)):
+            return LookGate(gate.waited) if gate.points.shape[0] else gate
+        grid = self._seen_port.Eval(context)
+        if not isinstance(grid, SeenGrid):
+            return LookGate(gate.waited)
+        points = unseen_footprint(grid, self._core.base_path_ahead(), q[:3], context.get_time(), look)
+        if not points.shape[0]:
+            return LookGate(gate.waited)
+        waited = gate.waited + self._config.period
+        if waited >= look.max_wait:
+            _log.warning("WholeBodyTracker t=%.2f: %d cells on the path ahead still unseen after %.1f s; driving on",
+                         context.get_time(), points.shape[0], look.max_wait)
+            return LookGate(waited)
+        if not gate.points.shape[0]:
+            _log.info("WholeBodyTracker t=%.2f: holding until %d unseen cells on the path ahead are seen",
+                      context.get_time(), points.shape[0])
+        return LookGate(waited, points)
+
+    def _calc_trajectory_time(self, context, output) -> None:
+        output.SetAtIndex(0, context.get_abstract_state(self._tracking_index).get_value().nearest_time)
+
+    def _calc_look_request(self, context, output) -> None:
+        output.set_value(context.get_abstract_state(self._gate_index).get_value().points)
 
     def _calc_base_velocity(self, context, output) -> None:
         output.SetFromVector(context.get_discrete_state(self._u_index).get_value()[:BASE_VELOCITY_SIZE])
