@@ -72,8 +72,9 @@ class SubgoalPolicy(LeafSystem):
     history and failure counts are inspectable for tests and logs. Without a
     connected ``motion_feedback``, a goal is reached when q is within
     ``reach_tolerance`` of it; motion failures then need the feedback port.
-    A sampler error or bad input is logged and recorded as a stage failure;
-    it never raises inside an episode.
+    A sampler that raises ends the policy as FAILED with category ERROR (its
+    traceback as the reason; the episode's status is ``error``); bad input is
+    logged and the robot holds. It never raises inside an episode.
     """
 
     def __init__(self, behaviour: SubgoalBehaviour, config: SubgoalPolicyConfig | None = None) -> None:
