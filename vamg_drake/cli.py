@@ -35,11 +35,14 @@ def _load_or_generate(args) -> "Scenario":  # noqa: F821
             return load_scenario(args.scenario)
         except (ScenarioError, FileNotFoundError) as e:
             raise SystemExit(f"vamg: {e}") from None
-    from vamg_drake.world.rooms import RoomGeneratorConfig, generate_scenario
+    from vamg_drake.world.rooms import GenerationError, RoomGeneratorConfig, generate_scenario
 
     _check_seed(args.seed)
     dynamic = bool(getattr(args, "dynamic", False))
-    return generate_scenario(args.seed, RoomGeneratorConfig(dynamic=dynamic))
+    try:
+        return generate_scenario(args.seed, RoomGeneratorConfig(dynamic=dynamic))
+    except GenerationError as e:
+        raise SystemExit(f"vamg: --seed {args.seed}: {e}") from None
 
 
 def _check_seed(seed: int) -> None:
@@ -114,7 +117,7 @@ def _cmd_run(args) -> int:
 
 
 def _cmd_scenario_generate(args) -> int:
-    from vamg_drake.world.rooms import generate_scenario
+    from vamg_drake.world.rooms import GenerationError, generate_scenario
     from vamg_drake.world.scenario import save_scenario
 
     _check_seed(args.seed)
@@ -127,7 +130,10 @@ def _cmd_scenario_generate(args) -> int:
         except ReplicaCadError as e:
             raise SystemExit(f"vamg scenario generate: {e}") from None
     else:
-        scenario = generate_scenario(args.seed)
+        try:
+            scenario = generate_scenario(args.seed)
+        except GenerationError as e:
+            raise SystemExit(f"vamg scenario generate: --seed {args.seed}: {e}") from None
     save_scenario(scenario, out)
     print(f"wrote {out}: {scenario.name}, {len(scenario.furniture)} furniture, {len(scenario.objects)} objects, target {scenario.target}")
     return 0
