@@ -259,7 +259,7 @@ def test_cli_bad_inputs_are_one_line_errors(tmp_path):
     bad_scenario.write_text(scenario_to_yaml(scenario))
     _assert_one_line_error(_vamg("run", "--scenario", str(bad_scenario), "--out", str(tmp_path / "o")),
                            "nan_yaw.yaml: furniture[0].pose.yaw: must be a finite number")
-    for limit in ("-1", "nan", "inf"):
+    for limit in ("-1", "nan", "inf", "1e300"):
         _assert_one_line_error(_vamg("run", "--time-limit", limit, "--out", str(tmp_path / "o")), "--time-limit")
     _assert_one_line_error(_vamg("run", "--seed", "-1", "--out", str(tmp_path / "o")), "--seed")
     config = tmp_path / "hang.yaml"
@@ -353,3 +353,21 @@ def test_a_drake_assertion_while_building_is_a_recorded_error(tmp_path):
     episode = json.loads((tmp_path / "episode.json").read_text())
     assert episode["status"] == "error" and "shape_specification" in episode["error"]
     assert "Traceback" in (tmp_path / "episode.log").read_text()
+
+
+def test_furniture_spanning_the_corner_of_an_l_shaped_room():
+    """Every corner of the part lies inside the room, but the wall corner lies inside the part."""
+    from vamg_drake.world.scenario import Furniture, PlanarPose, Room
+
+    s = box_room_scenario()
+    s.room = Room(outline=[[-3, -2.5], [3, -2.5], [3, 1], [0, 1], [0, 2.5], [-3, 2.5]])
+    validate_scenario(s, "good.yaml")
+    s.furniture.append(Furniture("cabinet_0", "cabinet", PlanarPose(-0.05, 0.95, 0.785),
+                                 [Part("body", Box([1.1, 1.1, 0.5]), [0.0, 0.0, 0.25])]))
+    assert "through the room's walls" in _one(s, "furniture[1].pose")
+
+
+def test_time_limit_has_an_upper_bound(tmp_path):
+    s = box_room_scenario()
+    s.time_limit = 1e12
+    assert "up to 86400" in _one(s, "time_limit")

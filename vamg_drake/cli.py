@@ -93,8 +93,11 @@ def _cmd_run(args) -> int:
 
     if args.policy and args.policy not in POLICIES:
         raise SystemExit(f"vamg run: unknown --policy '{args.policy}' (known: {', '.join(POLICIES)})")
-    if args.time_limit is not None and not (math.isfinite(args.time_limit) and args.time_limit > 0):
-        raise SystemExit(f"vamg run: --time-limit: must be a positive number of seconds, got {args.time_limit}")
+    from vamg_drake.world.scenario import MAX_TIME_LIMIT
+
+    if args.time_limit is not None and not (math.isfinite(args.time_limit) and 0 < args.time_limit <= MAX_TIME_LIMIT):
+        raise SystemExit(f"vamg run: --time-limit: must be a positive number of seconds up to {MAX_TIME_LIMIT:g}, "
+                         f"got {args.time_limit}")
     check_rendering_libraries()
     scenario = _load_or_generate(args)
     if args.time_limit is not None:

@@ -49,6 +49,8 @@ SUPPORT_HEIGHT_BAND = (-0.05, 0.30)
 #: The largest extent [m] of any shape (a part, an obstacle): beyond it a
 #: number is a typo, and Drake's geometry would accept it.
 MAX_SHAPE_EXTENT = 20.0
+#: The longest episode [s] a scenario may ask for (a day: beyond it, a typo).
+MAX_TIME_LIMIT = 86400.0
 #: The fastest a moving obstacle may go [m/s] (a running person; the paper's 0.2).
 MAX_OBSTACLE_SPEED = 5.0
 #: How far [m] a furniture part may reach through the room's outline, or
@@ -660,8 +662,9 @@ def validate_scenario(scenario: Scenario, source: str = "<scenario>") -> None:
     problems: list[str] = []
     if not scenario.name:
         problems.append("name: missing")
-    if not (math.isfinite(scenario.time_limit) and scenario.time_limit > 0):
-        problems.append(f"time_limit: must be positive, got {scenario.time_limit}")
+    if not (math.isfinite(scenario.time_limit) and 0 < scenario.time_limit <= MAX_TIME_LIMIT):
+        problems.append(f"time_limit: must be a positive number of seconds up to {MAX_TIME_LIMIT:g}, "
+                        f"got {scenario.time_limit}")
     room_ok = _check_room(scenario.room, problems)
     _check_numbers(scenario, problems)
     replicacad_ok = _check_replicacad(scenario, problems)
@@ -859,7 +862,12 @@ def _check_furniture_geometry(scenario: Scenario, problems: list[str], room_ok: 
             z_lo, z_hi = prim.z_range()
             boxes.append((footprint.min(axis=0), footprint.max(axis=0), z_lo, z_hi))
             if poly is not None and scenario.replicacad is None:
-                outside.append(float(np.max(signed_distance_to_polygon(footprint, poly))))
+                depth = float(np.max(signed_distance_to_polygon(footprint, poly)))
+                # A wall corner of a concave room inside the part: the part spans the corner.
+                corners = points_in_polygon(poly, footprint)
+                if np.any(corners):
+                    depth = max(depth, float(np.max(-signed_distance_to_polygon(poly[corners], footprint))))
+                outside.append(depth)
         if outside and max(outside) > tol:
             worst = int(np.argmax(outside))
             problems.append(f"furniture[{i}].pose: {furniture.name} reaches {outside[worst]:.2f} m through the "
