@@ -1,6 +1,8 @@
-"""Look before you leave: the seen-floor grid, the tracker's rule that the base
-does not enter unseen cells, the gaze's look at them, and the gaze window on
-the tracker's progress."""
+"""Look before you leave: the seen-floor grid and its hidden cells (points for
+the planner), the tracker's rule that the base does not enter unseen cells,
+the gaze's look at them, and the gaze window on the tracker's progress."""
+
+import dataclasses as dc
 
 import numpy as np
 import pytest
@@ -10,7 +12,9 @@ from vamg_drake.control.whole_body_tracker import TrackerStatus
 from vamg_drake.diagram import DiagramConfig
 from vamg_drake.episode import run_episode
 from vamg_drake.perception.gaze import GazeOptimizer as GazeCore, decide_fetch_gaze
-from vamg_drake.perception.seen_space import LookGateConfig, SeenGrid, SeenSpaceConfig, unseen_footprint
+from vamg_drake.perception.raycast_map import PointMapSnapshot
+from vamg_drake.perception.seen_space import (LookGateConfig, SeenGrid, SeenSpaceConfig, unseen_footprint,
+                                              with_hidden_cells)
 from vamg_drake.perception.trajectory_sweep import TrajectorySweep
 from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.robot import layout
@@ -54,10 +58,15 @@ def test_cells_are_seen_where_the_ray_reaches_them_and_not_behind_a_surface():
     z_probe = np.array([1.0, 0.0, 0.25 - 1.1]) @ X_WC[:3, 2]
     top = grid.observe(np.full((K.height, K.width), 0.9 * z_probe, np.float32), X_WC, K, t=1.0)
     assert top.seen_by(ahead[None], 10.0)[0]
-    # Unless the surface is the robot's own base.
-    own = grid.observe(np.full((K.height, K.width), 0.9 * z_probe, np.float32), X_WC, K, t=1.0,
-                       p_WB=np.array([0.95, 0.0]))
+    assert top.hidden[ahead[0], ahead[1]] and top.hidden_points().shape[0] == 3 * top.hidden.sum()
+    # Unless the surface is the robot's own base (the ring beside it aside).
+    no_ring = SeenGrid.around(np.zeros(2), SeenSpaceConfig(half_extent=4.0, ring_radius=0.32))
+    own = no_ring.observe(np.full((K.height, K.width), 0.9 * z_probe, np.float32), X_WC, K, t=1.0,
+                          p_WB=np.array([0.65, 0.0]))
     assert not own.seen_by(ahead[None], 10.0)[0]
+    # A ray that later reaches the probe frees a hidden cell.
+    freed = top.observe(np.full((K.height, K.width), np.inf, np.float32), X_WC, K, t=2.0)
+    assert not freed.hidden[ahead[0], ahead[1]] and freed.hidden_revision == top.hidden_revision + 1
 
 
 def test_unseen_footprint_lists_the_unseen_cells_of_the_next_stretch_of_path():
@@ -185,3 +194,18 @@ def test_robot_looks_at_the_low_cabinet_beside_its_start_before_it_drives(tmp_pa
     assert result.status != COLLISION, (result.status, result.detail)
     assert result.path_length > 0.2  # it left after looking
     assert "holding until" in (tmp_path / "episode.log").read_text()
+
+
+def test_planner_map_gets_points_in_the_hidden_cells_columns():
+    points = np.array([[1.0, 1.0, 0.7], [1.2, 1.0, 0.7]])
+    snapshot = PointMapSnapshot(points, np.array([1, 2], np.int64), 0.03, revision=5)
+    grid = _grid()
+    assert with_hidden_cells(snapshot, grid) is snapshot  # nothing hidden: the map itself
+    hidden = np.zeros(grid.shape, bool)
+    cell = grid.cell_of(np.array([[1.0, 1.0]]))[0]
+    hidden[cell[0], cell[1]] = True
+    merged = with_hidden_cells(snapshot, dc.replace(grid, hidden=hidden, hidden_revision=2))
+    assert merged.num_points == 2 + 3 and merged.revision == 7
+    np.testing.assert_allclose(merged.points[2:, 2], [0.1, 0.25, 0.4])
+    np.testing.assert_allclose(merged.points[2:, :2], np.repeat(grid.centers(cell[None]), 3, axis=0))
+    assert merged.voxel_keys.shape == (5,)

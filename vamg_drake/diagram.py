@@ -7,8 +7,9 @@ The full system (``policy: full``, the default)::
       depth, X_WC, q ─► RayCastMap (10 Hz) ─► point_map
       depth, X_WC, target ─► TargetCloud ─► target_cloud
       point_map, q, target, motion_feedback, target_cloud ─► SubgoalPolicy ─► goal, phase, gripper_command
-      goal, point_map, q, target ─► WholeBodyPlanner ─► timed_trajectory, motion_feedback
-      depth, X_WC ─► SeenSpace (10 Hz) ─► seen_space
+      goal, planner's point_map, q, target ─► WholeBodyPlanner ─► timed_trajectory, motion_feedback
+      depth, X_WC, q ─► SeenSpace (10 Hz) ─► seen_space
+      point_map, seen_space ─► HiddenCellMap ─► the planner's point_map
       timed_trajectory, q, seen_space ─► WholeBodyTracker (20 Hz) ─► base_velocity, joint_velocity,
                                                                trajectory_time, look_request
       timed_trajectory, trajectory_time, look_request, q, target ─► GazeOptimizer (10 Hz) ─► head_command
@@ -51,7 +52,7 @@ from vamg_drake.systems.raycast_map_system import RayCastMap
 from vamg_drake.systems.robot_command import RobotCommandIntegrator
 from vamg_drake.systems.robot_state import RobotStateSelector
 from vamg_drake.systems.scripted_driver import ScriptedDriver, ScriptedDriverConfig
-from vamg_drake.systems.seen_space_system import SeenSpace
+from vamg_drake.systems.seen_space_system import HiddenCellMap, SeenSpace
 from vamg_drake.systems.subgoal_policy_system import SubgoalPolicyConfig, make_subgoal_policy
 from vamg_drake.systems.target_cloud import TargetCloud, TargetCloudConfig
 from vamg_drake.systems.timing import ModuleTimings
@@ -295,7 +296,10 @@ def _add_full_system(builder: DiagramBuilder, ed: EpisodeDiagram, scenario: Scen
     builder.Connect(cloud.GetOutputPort("target_cloud"), policy.GetInputPort("target_cloud"))
 
     builder.Connect(policy.GetOutputPort("goal"), planner.GetInputPort("goal"))
-    builder.Connect(point_map.GetOutputPort("point_map"), planner.GetInputPort("point_map"))
+    planner_map = builder.AddNamedSystem("hidden_cell_map", HiddenCellMap())
+    builder.Connect(point_map.GetOutputPort("point_map"), planner_map.GetInputPort("point_map"))
+    builder.Connect(seen.GetOutputPort("seen_space"), planner_map.GetInputPort("seen_space"))
+    builder.Connect(planner_map.GetOutputPort("point_map"), planner.GetInputPort("point_map"))
     builder.Connect(q, planner.GetInputPort("robot_configuration"))
     builder.Connect(target.get_output_port(), planner.GetInputPort("target"))
 

@@ -12,10 +12,17 @@ A cell is seen when the ray from the camera to its probe point (the cell
 centre at `probe_height`) reached the point: the probe lies in the image,
 within the map's depth range and crop radius, and the measured depth at its
 pixel is no shorter than the probe's depth minus `depth_tolerance` (or the
-pixel has no return, +inf), or when the ray stopped on a surface within
-`surface_radius` of the cell (an obstacle in the cell, now in the map; hits
-on the robot's own base do not count). A ray stopped farther away leaves the
-cell unseen: something in front hides it. The probe height sits above the
+pixel has no return, +inf). A ray stopped on a surface within
+`surface_radius` of the cell (hits on the robot's own base do not count)
+also makes the cell seen, and *hidden*: something stands over it whose
+underside the head has not seen (a low cabinet's top seen from above, its
+sides below the base's view). So do the cells of the ring around the base
+that the base hides from the head next to an obstacle seen reaching the ring
+(a cabinet's corner beside the start). The map holds only that top, which the
+base's spheres pass under, so `with_hidden_cells` adds points in the hidden
+cells' columns to the planner's map until a ray reaches their probe. A ray
+stopped farther away leaves the cell unseen: something in front hides it.
+Cells under the robot's base count as seen (it stands there). The probe height sits above the
 base's top edge, so the floor ring just outside the base, hidden from the head
 by the base itself, can still be seen; an obstacle lower than the probe is
 met by the same ray just past the probe and enters the map.
@@ -27,6 +34,7 @@ import math
 
 import numpy as np
 
+from vamg_drake.perception.raycast_map import PointMapSnapshot, _encode_points, inside_any_sphere
 from vamg_drake.robot.head_camera import CameraIntrinsics
 
 
@@ -46,8 +54,20 @@ class SeenSpaceConfig:
     depth_tolerance: float = 0.05
     #: A ray stopped on a surface this close (horizontally) to the cell's centre sees the cell [m].
     surface_radius: float = 0.15
-    #: Hits closer than this to the robot's base centre are on the robot itself [m].
+    #: Hits closer than this to the robot's base centre are on the robot itself, and the
+    #: cells this close are seen (the robot stands on them) [m].
     robot_radius: float = 0.32
+    #: Extra radius [m] of the robot's spheres when telling its own hits from obstacles.
+    self_filter_margin: float = 0.03
+    #: The ring from `robot_radius` to this around the base is hidden from the head by the
+    #: base (and the stowed arm); its cells within `extend_radius` of an obstacle hit lower
+    #: than `ring_max_height` are hidden cells (the obstacle may continue into the ring) [m].
+    ring_radius: float = 0.45
+    extend_radius: float = 0.15
+    ring_max_height: float = 0.7
+    #: Heights of the points `with_hidden_cells` adds in each hidden cell's column [m]
+    #: (below the top of the base's spheres, 0.58 m).
+    hidden_heights: list[float] = dc.field(default_factory=lambda: [0.1, 0.25, 0.4])
     #: The map's depth range and crop radius (what is not put into the map is not seen) [m].
     depth_min: float = 0.2
     depth_max: float = 3.0
@@ -108,15 +128,18 @@ class LookGateConfig:
 
 @dc.dataclass(frozen=True, eq=False)
 class SeenGrid:
-    """Floor cells and the time each was first seen (+inf: never), immutable.
+    """Floor cells, the time each was first seen (+inf: never) and which are hidden, immutable.
 
     Cell (i, j) has centre origin + (i + 0.5, j + 0.5) * resolution (x, y).
+    `hidden_revision` counts the changes of the hidden set.
     """
 
     origin: np.ndarray
     resolution: float
     first_seen: np.ndarray  # (nx, ny) float64, +inf = unseen
     config: SeenSpaceConfig
+    hidden: np.ndarray | None = None  # (nx, ny) bool; None = none hidden
+    hidden_revision: int = 0
 
     @staticmethod
     def around(center_xy: np.ndarray, config: SeenSpaceConfig | None = None) -> "SeenGrid":
@@ -147,11 +170,16 @@ class SeenGrid:
         return out
 
     def observe(self, depth: np.ndarray, X_WC: np.ndarray, intrinsics: CameraIntrinsics, t: float,
-                p_WB: np.ndarray | None = None) -> "SeenGrid":
+                p_WB: np.ndarray | None = None,
+                robot_spheres: tuple[np.ndarray, np.ndarray] | None = None) -> "SeenGrid":
         """The grid after one depth image (H, W) [m] from camera pose X_WC (4, 4) at time t.
 
-        `p_WB` (2,) is the robot's base position (its hits are not obstacles; None: no robot).
-        Returns `self` when no new cell was seen.
+        Args:
+            p_WB: (2,) the robot's base position, or None (no robot).
+            robot_spheres: the robot's sphere centres (S, 3) and radii (S,) now: hits in
+                them (plus `self_filter_margin`) are the robot, not obstacles.
+
+        Returns `self` when nothing changed.
         """
         c = self.config
         depth = np.asarray(depth, dtype=np.float32).reshape(intrinsics.height, intrinsics.width)
@@ -165,6 +193,8 @@ class SeenGrid:
         ii, jj = np.meshgrid(np.arange(lo[0], hi[0]), np.arange(lo[1], hi[1]), indexing="ij")
         ii, jj = ii.ravel(), jj.ravel()
         todo = ~np.isfinite(self.first_seen[ii, jj])
+        if self.hidden is not None:
+            todo |= self.hidden[ii, jj]
         ii, jj = ii[todo], jj[todo]
         if ii.size == 0:
             return self
@@ -183,17 +213,53 @@ class SeenGrid:
         with np.errstate(invalid="ignore"):
             reached = ok & (np.isposinf(measured) | (measured >= z - c.depth_tolerance))
             blocked = ok & ~reached & np.isfinite(measured) & (measured >= c.depth_min)
+        d_B = None if p_WB is None else np.linalg.norm(xy - np.asarray(p_WB, float).reshape(2), axis=1)
+        if d_B is not None:
+            reached |= d_B <= c.robot_radius
+        covered = np.zeros_like(reached)
         if np.any(blocked):
-            hit = p_WC[:2] + (p_W[blocked, :2] - p_WC[:2]) * (measured[blocked] / z[blocked])[:, None]
-            near = np.linalg.norm(hit - xy[blocked], axis=1) <= c.surface_radius
+            rows = np.flatnonzero(blocked)
+            hit = p_WC + (p_W[rows] - p_WC) * (measured[rows] / z[rows])[:, None]
+            real = np.ones(rows.shape[0], bool)
             if p_WB is not None:
-                near &= np.linalg.norm(hit - np.asarray(p_WB, float).reshape(2), axis=1) > c.robot_radius
-            reached[np.flatnonzero(blocked)[near]] = True
-        if not np.any(reached):
+                real &= np.linalg.norm(hit[:, :2] - np.asarray(p_WB, float).reshape(2), axis=1) > c.robot_radius
+            if robot_spheres is not None and real.any():
+                centers, radii = robot_spheres
+                real[real] = ~inside_any_sphere(np.ascontiguousarray(hit[real]), np.ascontiguousarray(centers, float),
+                                                np.asarray(radii, float) + c.self_filter_margin)
+            near = real & (np.linalg.norm(hit[:, :2] - xy[rows], axis=1) <= c.surface_radius)
+            covered[rows[near]] = True
+            # The ring around the base that the base hides from the head: an obstacle
+            # seen reaching to within `extend_radius` of a ring cell may continue into it.
+            low = hit[real & (hit[:, 2] <= c.ring_max_height), :2]
+            if d_B is not None and low.shape[0]:
+                ring = np.flatnonzero((d_B > c.robot_radius) & (d_B <= c.ring_radius) & ~reached)
+                if ring.size:
+                    d2 = ((xy[ring, None, :] - low[None, :, :]) ** 2).sum(axis=2).min(axis=1)
+                    covered[ring[d2 <= c.extend_radius**2]] = True
+        covered &= ~np.isfinite(self.first_seen[ii, jj])  # a cell once reached stays free
+        hidden_now = np.zeros_like(reached) if self.hidden is None else self.hidden[ii, jj]
+        newly_seen = (reached | covered) & ~np.isfinite(self.first_seen[ii, jj])
+        hidden_change = (covered & ~hidden_now) | (reached & hidden_now)
+        if not (np.any(newly_seen) or np.any(hidden_change)):
             return self
         first_seen = self.first_seen.copy()
-        first_seen[ii[reached], jj[reached]] = t
-        return dc.replace(self, first_seen=first_seen)
+        first_seen[ii[newly_seen], jj[newly_seen]] = t
+        hidden, revision = self.hidden, self.hidden_revision
+        if np.any(hidden_change):
+            hidden = np.zeros(self.shape, bool) if hidden is None else hidden.copy()
+            hidden[ii[covered], jj[covered]] = True
+            hidden[ii[reached], jj[reached]] = False
+            revision += 1
+        return dc.replace(self, first_seen=first_seen, hidden=hidden, hidden_revision=revision)
+
+    def hidden_points(self) -> np.ndarray:
+        """(M, 3) points in the columns of the hidden cells, at `config.hidden_heights`."""
+        if self.hidden is None:
+            return np.empty((0, 3))
+        xy = self.centers(np.argwhere(self.hidden))
+        heights = np.asarray(self.config.hidden_heights, float)
+        return np.column_stack([np.repeat(xy, heights.shape[0], axis=0), np.tile(heights, xy.shape[0])])
 
 
 def unseen_footprint(grid: SeenGrid, path: np.ndarray, q_base: np.ndarray, t: float,
@@ -235,3 +301,25 @@ def unseen_footprint(grid: SeenGrid, path: np.ndarray, q_base: np.ndarray, t: fl
     wanted = (d2 <= r * r) & (own > max(r, config.blind_radius)) & (bearing <= config.max_bearing)
     wanted[wanted] = ~grid.seen_by(cells[wanted], t - config.settle_time)
     return np.column_stack([xy[wanted], np.full(int(wanted.sum()), grid.config.probe_height)])
+
+
+def with_hidden_cells(snapshot: PointMapSnapshot | None, grid: SeenGrid | None) -> PointMapSnapshot | None:
+    """The map `snapshot` plus the points of the grid's hidden cells (`SeenGrid.hidden_points`).
+
+    The revision is the sum of the map's and the hidden set's, so it changes
+    whenever either does. Returns `snapshot` itself when no cell is hidden.
+    """
+    extra = np.empty((0, 3)) if grid is None else grid.hidden_points()
+    if extra.shape[0] == 0:
+        return snapshot
+    if snapshot is None:
+        voxel_size, points, keys, revision = grid.config.resolution, np.empty((0, 3)), np.empty(0, np.int64), 0
+    else:
+        voxel_size, points, keys, revision = (snapshot.voxel_size, snapshot.points, snapshot.voxel_keys,
+                                              snapshot.revision)
+    extra_keys = _encode_points(np.ascontiguousarray(extra), 1.0 / voxel_size)
+    merged_points = np.concatenate([points, extra])
+    merged_keys = np.concatenate([keys, extra_keys])
+    merged_points.flags.writeable = False
+    merged_keys.flags.writeable = False
+    return PointMapSnapshot(merged_points, merged_keys, voxel_size, int(revision) + grid.hidden_revision)
