@@ -371,3 +371,18 @@ def test_time_limit_has_an_upper_bound(tmp_path):
     s = box_room_scenario()
     s.time_limit = 1e12
     assert "up to 86400" in _one(s, "time_limit")
+
+
+@pytest.mark.parametrize("value", [float("nan"), -0.1, 1.5])
+def test_colours_are_checked(value):
+    s = box_room_scenario()
+    s.furniture[0].parts[0].rgba = [0.5, value, 0.5, 1.0]
+    assert "in [0, 1]" in _one(s, "furniture[0].parts[0].rgba")
+
+
+def test_a_part_below_the_floor():
+    s = box_room_scenario()
+    s.furniture[0].parts.append(Part("root", Box([0.2, 0.2, 0.2]), [0.0, 0.0, -0.5]))
+    problems = _problems(s)
+    assert any(p.startswith(f"bad.yaml: furniture[0].parts[{len(s.furniture[0].parts) - 1}]:") and "below the floor" in p
+               for p in problems), problems

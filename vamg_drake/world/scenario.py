@@ -823,6 +823,11 @@ def _check_numbers(scenario: Scenario, problems: list[str]) -> None:
     for k, door in enumerate(room.doorways):
         if not _finite_vector([door.center, door.width], 2):
             problems.append(f"room.doorways[{k}]: center and width must be finite numbers")
+    for i, furniture in enumerate(scenario.furniture):
+        for j, part in enumerate(furniture.parts):
+            _check_rgba(part.rgba, f"furniture[{i}].parts[{j}].rgba", problems)
+    for i, event in enumerate(scenario.dynamic_events):
+        _check_rgba(event.rgba, f"dynamic_events[{i}].rgba", problems)
     for i, obj in enumerate(scenario.objects):
         if not math.isfinite(obj.support_height):
             problems.append(f"objects[{i}].support_height: must be a finite number, got {obj.support_height}")
@@ -839,6 +844,11 @@ def _check_numbers(scenario: Scenario, problems: list[str]) -> None:
                 problems.append(f"{where}.start_time: must be a finite number >= 0, got {event.start_time}")
         if isinstance(event, AppearAtDistance) and not math.isfinite(event.trigger_distance):
             problems.append(f"{where}.trigger_distance: must be a finite number, got {event.trigger_distance}")
+
+
+def _check_rgba(rgba, where: str, problems: list[str]) -> None:
+    if not _finite_vector(rgba, 4) or not all(0.0 <= c <= 1.0 for c in rgba):
+        problems.append(f"{where}: needs 4 numbers in [0, 1], got {rgba}")
 
 
 def _check_furniture_geometry(scenario: Scenario, problems: list[str], room_ok: bool) -> None:
@@ -872,6 +882,10 @@ def _check_furniture_geometry(scenario: Scenario, problems: list[str], room_ok: 
             worst = int(np.argmax(outside))
             problems.append(f"furniture[{i}].pose: {furniture.name} reaches {outside[worst]:.2f} m through the "
                             f"room's walls (part {furniture.parts[worst].name!r})")
+        for j, (_, _, z_lo, _) in enumerate(boxes):
+            if z_lo < -tol:
+                problems.append(f"furniture[{i}].parts[{j}]: {furniture.name}/{furniture.parts[j].name} reaches "
+                                f"{-z_lo:.2f} m below the floor")
         grounded = {j for j, (_, _, z_lo, _) in enumerate(boxes) if z_lo <= tol}
         changed = True
         while changed:
