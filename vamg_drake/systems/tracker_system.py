@@ -169,6 +169,9 @@ class WholeBodyTracker(LeafSystem):
             return LookGate(gate.waited)
         points = unseen_footprint(grid, self._core.base_path_ahead(), q[:3], context.get_time(), look)
         if not points.shape[0]:
+            if gate.points.shape[0]:
+                _log.info("WholeBodyTracker t=%.2f: the path ahead is seen; driving (held %.2f s on this trajectory)",
+                          context.get_time(), gate.waited)
             return LookGate(gate.waited)
         waited = gate.waited + self._config.period
         if waited >= look.max_wait:
