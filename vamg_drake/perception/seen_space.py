@@ -12,20 +12,20 @@ A cell is seen when the ray from the camera to its probe point (the cell
 centre at `probe_height`) reached the point: the probe lies in the image,
 within the map's depth range and crop radius, and the measured depth at its
 pixel is no shorter than the probe's depth minus `depth_tolerance` (or the
-pixel has no return, +inf). A ray stopped on a surface within
-`surface_radius` of the cell (hits on the robot's own base do not count)
-also makes the cell seen, and *hidden*: something stands over it whose
-underside the head has not seen (a low cabinet's top seen from above, its
-sides below the base's view). So do the cells of the ring around the base
-that the base hides from the head next to an obstacle seen reaching the ring
-(a cabinet's corner beside the start). The map holds only that top, which the
-base's spheres pass under, so `with_hidden_cells` adds points in the hidden
-cells' columns to the planner's map until a ray reaches their probe. A ray
-stopped farther away leaves the cell unseen: something in front hides it.
-Cells under the robot's base count as seen (it stands there). The probe height sits above the
-base's top edge, so the floor ring just outside the base, hidden from the head
-by the base itself, can still be seen; an obstacle lower than the probe is
-met by the same ray just past the probe and enters the map.
+pixel has no return, +inf). An obstacle lower than the probe is met by the
+same ray just past it and enters the map. A ray stopped farther than
+`surface_radius` from the cell leaves it unseen (something in front hides
+it); cells under the robot's base count as seen (it stands there).
+
+A ray stopped on a surface within `surface_radius` of the cell (not the robot
+itself) makes the cell seen but *hidden*: something stands over it whose
+underside the head has not seen, e.g. a low cabinet whose top it sees from
+above and whose sides are below the base's view. The map then holds only the
+top, which the base's spheres pass under. The ring around the base that the
+base and the stowed arm hide from the head (`robot_radius` to `ring_radius`)
+is hidden where an obstacle is seen reaching it. `with_hidden_cells` adds
+points in the hidden cells' columns to the planner's map until a ray reaches
+their probes.
 """
 
 
@@ -47,8 +47,8 @@ class SeenSpaceConfig:
     #: The grid covers a square of this half-width around its centre (the robot's start) [m];
     #: cells outside it count as seen.
     half_extent: float = 12.0
-    #: Height of each cell's probe point [m] (above the base's top edge, 0.38 m from the
-    #: floor at 0.3 m from its centre, as the head sees it).
+    #: Height of each cell's probe point [m]: below low furniture's tops, and high enough
+    #: for the head's rays to it to clear the base's top edge (0.38 m) close to the base.
     probe_height: float = 0.25
     #: A probe counts as reached when the measured depth is at least its depth minus this [m].
     depth_tolerance: float = 0.05
@@ -84,8 +84,12 @@ class SeenSpaceConfig:
             raise ValueError("SeenSpaceConfig: need 0 <= depth_min < depth_max")
         if not (self.crop_radius > 0.0 and self.depth_tolerance >= 0.0):
             raise ValueError("SeenSpaceConfig: need crop_radius > 0 and depth_tolerance >= 0")
-        if not (self.surface_radius >= 0.0 and self.robot_radius >= 0.0):
-            raise ValueError("SeenSpaceConfig: need surface_radius >= 0 and robot_radius >= 0")
+        if not (self.surface_radius >= 0.0 and self.robot_radius >= 0.0 and self.extend_radius >= 0.0):
+            raise ValueError("SeenSpaceConfig: need surface_radius, robot_radius and extend_radius >= 0")
+        if not self.ring_radius >= self.robot_radius:
+            raise ValueError("SeenSpaceConfig: need ring_radius >= robot_radius")
+        if not all(math.isfinite(h) and h >= 0.0 for h in self.hidden_heights):
+            raise ValueError(f"SeenSpaceConfig.hidden_heights must be finite and >= 0, got {self.hidden_heights}")
 
 
 @dc.dataclass
@@ -100,8 +104,8 @@ class LookGateConfig:
             the path after it lies ahead (and in view) once the robot has turned [rad].
         footprint_radius: radius of the base footprint (sphere model 0.30 m + margin) [m].
         blind_radius: cells this close to the base centre are not waited for: the base
-            and the stowed arm hide the floor ring around the base from the head, and an
-            obstacle there that reaches no farther is narrower than the ring [m].
+            and the stowed arm hide the ring around the base from the head (an obstacle
+            seen reaching into it makes its cells hidden, `SeenSpaceConfig.ring_radius`) [m].
         max_bearing: cells farther than this from the base heading are not waited for
             (the head, pan limits +-1.57 rad, cannot see behind the robot) [rad].
         settle_time: a cell counts as seen this long after it was first seen, so the
@@ -120,7 +124,8 @@ class LookGateConfig:
 
     def validate(self) -> None:
         """Raises ValueError naming the first bad field."""
-        for name in ("lookahead_distance", "max_turn", "footprint_radius", "blind_radius", "max_bearing", "settle_time", "max_wait"):
+        for name in ("lookahead_distance", "max_turn", "footprint_radius", "blind_radius", "max_bearing",
+                     "settle_time", "max_wait"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"LookGateConfig.{name} must be finite and >= 0, got {value}")
