@@ -165,3 +165,43 @@ def test_finger_pads_are_rigid_hydroelastic():
                                ("gripper_link", False)):
             for g in world.plant.GetCollisionGeometriesForBody(world.plant.GetBodyByName(link, world.robot)):
                 assert inspector.GetProximityProperties(g).HasGroup("hydroelastic") == expected, link
+
+
+def _two_object_room():
+    import dataclasses as dc
+
+    from vamg_drake.world.scenario import PlacedObject
+
+    scenario = box_room_scenario()
+    near = PlacedObject("mug", [2.0, 0.3, 0.80], [0, 0, 0], "table_0/top", 0.75)
+    return dc.replace(scenario, objects=scenario.objects + [near])
+
+
+def test_sleeping_clutter_holds_still_and_wakes_near_the_robot():
+    from vamg_drake.world.clutter_sleep import ClutterSleep, ClutterSleepConfig
+
+    ed = build_diagram(_two_object_room(), DiagramConfig(policy="scripted"))
+    sim = Simulator(ed.diagram)
+    sim.Initialize()
+    context = sim.get_mutable_context()
+    plant = ed.world.plant
+    plant_context = plant.GetMyContextFromRoot(context)
+    mug = ed.world.scene.object_bodies["mug"]
+    # Lift the mug 5 cm: asleep it stays in the air, awake it falls.
+    X = plant.EvalBodyPoseInWorld(plant_context, mug)
+    X.set_translation(X.translation() + [0, 0, 0.05])
+    plant.SetFreeBodyPose(plant.GetMyMutableContextFromRoot(context), mug, X)
+    sleeper = ClutterSleep(ed.world, ClutterSleepConfig(wake_distance=0.5))
+    sleeper.sleep_all(context)
+    assert sleeper.asleep == ["mug"]  # the target never sleeps
+    sim.AdvanceTo(0.5)
+    assert sleeper.update(context) == []  # the robot is 3.5 m away
+    np.testing.assert_allclose(plant.EvalBodyPoseInWorld(plant_context, mug).translation(), X.translation(), atol=1e-9)
+    sleeper.wake_all(context)
+    sleeper = ClutterSleep(ed.world, ClutterSleepConfig(wake_distance=10.0))
+    sleeper.sleep_all(context)
+    assert sleeper.update(context) == ["mug"] and sleeper.asleep == []
+    sim.AdvanceTo(1.5)
+    # Awake, it falls the 5 cm and rests on the table again (its contact with the table is back).
+    z = plant.EvalBodyPoseInWorld(plant_context, mug).translation()[2]
+    assert X.translation()[2] - 0.065 < z < X.translation()[2] - 0.035

@@ -35,7 +35,6 @@ What the importer does, per scene:
    every robot link origin is used when the phase starts).
 """
 
-from __future__ import annotations
 
 import json
 import math

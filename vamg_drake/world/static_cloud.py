@@ -9,7 +9,6 @@ sampled on a regular barycentric grid of ``spacing`` per triangle of each
 piece's convex hull, so the same scenario always gives the same cloud.
 """
 
-from __future__ import annotations
 
 import math
 

@@ -39,6 +39,7 @@ from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics, HeadCameraConfig
 from vamg_drake.robot.kinematics import CAMERA_FRAME, EXTENDED_JOINTS, NX, fetch_urdf_path
 from vamg_drake.robot.spheres import FINGER_LINKS
+from vamg_drake.world.clutter_sleep import ClutterSleepConfig
 from vamg_drake.world.scenario import Scenario
 from vamg_drake.world.scene_geometry import SceneGeometryConfig, SceneHandles, add_scene
 
@@ -85,6 +86,9 @@ class WorldConfig:
     #: contact normals tilted ~30 deg off the pad and the object slid out along
     #: the approach (box room: the tomato soup can left the closing fingers).
     hydroelastic_fingers: bool = True
+    #: Objects other than the target sleep (held still, no contact with the
+    #: welded scene) until the robot comes near; applied by the episode runner.
+    clutter_sleep: ClutterSleepConfig = dc.field(default_factory=ClutterSleepConfig)
 
 
 @dc.dataclass

