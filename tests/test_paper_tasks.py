@@ -230,3 +230,25 @@ def test_file_with_only_scenes_3_and_17_imports(tmp_path):
     assert [s.index for s in scenes] == [3, 17]
     apartments = [import_scene(s, dynamic=False, dataset_dir=REPLICACAD, tasks=[1]).apartment for s in scenes]
     assert apartments == ["apt_4", "apt_3"]
+
+
+@needs_task_file
+@needs_apartments
+def test_paper_suite_materializes_with_its_import_report(tmp_path, monkeypatch):
+    from vamg_drake.bench.suites import materialize_suite, suite_config
+
+    monkeypatch.setenv("VAMG_REPLICACAD_DIR", str(REPLICACAD))
+    config = suite_config("paper_dynamic", scenes=1, targets=3)
+    config.task_file = str(TASK_FILE)
+    suite = materialize_suite(config, tmp_path, progress=False)
+    assert len(suite.scenarios) + len([e for e in suite.excluded if e.get("task") is not None]) == 3
+    for s in suite.scenarios:
+        scenario = suite.load(s)
+        assert scenario.replicacad.scene == EXPECTED_APARTMENTS[0] and len(scenario.objects) >= 18
+        assert any(isinstance(e, AppearAtDistance) and e.heading_towards for e in scenario.dynamic_events)
+        assert s.shortest_path is not None and s.shortest_path > 1.0
+    report = json.loads((suite.directory / "import.json").read_text())
+    assert [scene["apartment"] for scene in report["scenes"]] == [EXPECTED_APARTMENTS[0]]
+    # A second call reads the same suite back (resume) without importing again.
+    again = materialize_suite(config, tmp_path, progress=False)
+    assert [s.id for s in again.scenarios] == [s.id for s in suite.scenarios]

@@ -317,19 +317,27 @@ def _build_replicacad(config: SuiteConfig, directory: Path, progress: bool) -> S
                 excluded.append({"scene": scene, "object": None, "reason": f"{scene_name}: {e}"})
                 continue
             scenario.time_limit = config.time_limit
-            if config.oracle:
-                result = check_graspable(scenario, scenario.target, config.oracle_config)
-                if not result.graspable:
-                    excluded.append({"scene": scene, "object": scenario.target,
-                                     "reason": f"oracle grasp check: {result.reason}"})
-                    continue
-            sid = f"s{scene:04d}_t{slot:02d}"
-            scenario.name = f"{config.name}_{scene_name}_{sid}"
-            file = f"scenarios/{sid}.yaml"
-            save_scenario(scenario, directory / file)
-            scenarios.append(SuiteScenario(sid, scene, slot, scenario.target, file, None))
+            kept = _keep_graspable(config, directory, scenario, scene, slot, f"{config.name}_{scene_name}", None, excluded)
+            if kept is not None:
+                scenarios.append(kept)
     bar.close()
     return _write_manifest(config, directory, scenarios, excluded)
+
+
+def _keep_graspable(config: SuiteConfig, directory: Path, scenario: Scenario, scene: int, slot: int, prefix: str,
+                    shortest_path: float | None, excluded: list[dict]) -> SuiteScenario | None:
+    """Writes ``scenario`` as slot ``slot`` of ``scene`` if the oracle lifts its target, else records the exclusion."""
+    if config.oracle:
+        result = check_graspable(scenario, scenario.target, config.oracle_config)
+        if not result.graspable:
+            excluded.append({"scene": scene, "object": scenario.target, "task": slot,
+                             "reason": f"oracle grasp check: {result.reason}"})
+            return None
+    sid = f"s{scene:04d}_t{slot:02d}"
+    scenario.name = f"{prefix}_{sid}"
+    file = f"scenarios/{sid}.yaml"
+    save_scenario(scenario, directory / file)
+    return SuiteScenario(sid, scene, slot, scenario.target, file, shortest_path)
 
 
 def resolve_task_file(config: SuiteConfig) -> Path:
@@ -382,18 +390,10 @@ def _build_paper_tasks(config: SuiteConfig, directory: Path, progress: bool) -> 
             bar.update(1)
         for index, scenario in imported.scenarios:
             bar.update(1)
-            if config.oracle:
-                result = check_graspable(scenario, scenario.target, config.oracle_config)
-                if not result.graspable:
-                    excluded.append({"scene": scene.index, "object": scenario.target, "task": index,
-                                     "reason": f"oracle grasp check: {result.reason}"})
-                    continue
-            sid = f"s{scene.index:04d}_t{index:02d}"
-            scenario.name = f"{config.name}_{sid}"
-            file = f"scenarios/{sid}.yaml"
-            save_scenario(scenario, directory / file)
-            scenarios.append(SuiteScenario(sid, scene.index, index, scenario.target, file,
-                                           shortest_base_path(scenario, config.shortest_path)))
+            kept = _keep_graspable(config, directory, scenario, scene.index, index, config.name,
+                                   shortest_base_path(scenario, config.shortest_path), excluded)
+            if kept is not None:
+                scenarios.append(kept)
     bar.close()
     tmp = directory / "import.json.tmp"
     tmp.write_text(json.dumps({"task_file": str(path), "scenes": imports}, indent=1))

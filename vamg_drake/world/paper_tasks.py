@@ -45,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from vamg_drake.world.primitives import signed_distance_to_polygon
+from vamg_drake.world.replicacad_generator import apartment_room
 from vamg_drake.world.replicacad import ReplicaCadLayout, Receptacle, list_replicacad_scenes, load_replicacad_layout
 from vamg_drake.world.scenario import (
     AppearAtDistance,
@@ -53,7 +54,6 @@ from vamg_drake.world.scenario import (
     PlacedObject,
     PlanarPose,
     ReplicaCadScene,
-    Room,
     Scenario,
     validate_scenario,
 )
@@ -495,15 +495,6 @@ def _manipulation_boxes(target: PlacedObject, support: Receptacle, others: list[
     return boxes
 
 
-def apartment_room(layout: ReplicaCadLayout, margin: float = 0.3, wall_thickness: float = 0.1, wall_height: float = 2.4) -> Room:
-    """The room of a ReplicaCAD scene: its bounding rectangle grown by ``margin``."""
-    lo, hi = layout.xy_bounds()
-    r = lambda v: round(float(v), 3)  # noqa: E731
-    outline = [[r(lo[0] - margin), r(lo[1] - margin)], [r(hi[0] + margin), r(lo[1] - margin)],
-               [r(hi[0] + margin), r(hi[1] + margin)], [r(lo[0] - margin), r(hi[1] + margin)]]
-    return Room(outline=outline, wall_thickness=wall_thickness, wall_height=wall_height)
-
-
 def available_apartments(dataset_dir: str | Path | None, config: PaperTaskConfig) -> list[str]:
     """The scene instances that may match: ``config.apartments`` or every ``apt_*`` of the dataset."""
     names = config.apartments or [s for s in list_replicacad_scenes(dataset_dir) if s.startswith("apt_")]
@@ -603,7 +594,6 @@ __all__ = [
     "PedestrianBox",
     "SceneImport",
     "TaskFileError",
-    "apartment_room",
     "import_scene",
     "match_apartment",
     "read_task_file",

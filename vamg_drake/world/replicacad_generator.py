@@ -114,6 +114,14 @@ class SceneContactCheck:
         return depth
 
 
+def apartment_room(layout: ReplicaCadLayout, margin: float = 0.3, wall_thickness: float = 0.1, wall_height: float = 2.4) -> Room:
+    """The room of a ReplicaCAD scene: its bounding rectangle grown by ``margin`` [m]."""
+    lo, hi = layout.xy_bounds()
+    lo, hi = lo - margin, hi + margin
+    outline = [[_r(lo[0]), _r(lo[1])], [_r(hi[0]), _r(lo[1])], [_r(hi[0]), _r(hi[1])], [_r(lo[0]), _r(hi[1])]]
+    return Room(outline=outline, wall_thickness=wall_thickness, wall_height=wall_height)
+
+
 def replicacad_floor_grid(layout: ReplicaCadLayout, room: Room, config: RoomGeneratorConfig, robot_height: float = 1.5) -> tuple[FloorGrid, np.ndarray]:
     """Returns (grid, reachable base cells) of a scene: on the navmesh, clear of walls and obstacles."""
     grid = FloorGrid(room, config.grid_resolution)
@@ -151,10 +159,7 @@ def generate_replicacad_scenario(
     explicit = str(resolve_replicacad_dir(dataset_dir)) if dataset_dir else ""
     layout = load_replicacad_layout(scene, explicit or None)
     rng = np.random.default_rng(seed)
-    lo, hi = layout.xy_bounds()
-    m = config.room_margin
-    outline = [[_r(lo[0] - m), _r(lo[1] - m)], [_r(hi[0] + m), _r(lo[1] - m)], [_r(hi[0] + m), _r(hi[1] + m)], [_r(lo[0] - m), _r(hi[1] + m)]]
-    room = Room(outline=outline, wall_thickness=config.objects.wall_thickness, wall_height=config.objects.wall_height)
+    room = apartment_room(layout, config.room_margin, config.objects.wall_thickness, config.objects.wall_height)
     grid, reachable = replicacad_floor_grid(layout, room, config.objects)
     if not np.any(reachable):
         raise GenerationError(f"replicacad {scene!r}: no free base position on the navmesh")
@@ -227,6 +232,7 @@ def _try_generate(scene, seed, layout, room, grid, reachable, rng, config: Repli
 
 __all__ = [
     "ReplicaCadError",
+    "apartment_room",
     "ReplicaCadGeneratorConfig",
     "SceneContactCheck",
     "find_replicacad_dir",
