@@ -177,7 +177,8 @@ def _two_object_room():
     return dc.replace(scenario, objects=scenario.objects + [near])
 
 
-def test_sleeping_clutter_holds_still_and_wakes_near_the_robot():
+@pytest.mark.parametrize("awake_radius, asleep", [(0.2, True), (0.5, False)])
+def test_clutter_away_from_the_target_sleeps_in_place(awake_radius, asleep):
     from vamg_drake.world.clutter_sleep import ClutterSleep, ClutterSleepConfig
 
     ed = build_diagram(_two_object_room(), DiagramConfig(policy="scripted"))
@@ -185,23 +186,16 @@ def test_sleeping_clutter_holds_still_and_wakes_near_the_robot():
     sim.Initialize()
     context = sim.get_mutable_context()
     plant = ed.world.plant
-    plant_context = plant.GetMyContextFromRoot(context)
     mug = ed.world.scene.object_bodies["mug"]
-    # Lift the mug 5 cm: asleep it stays in the air, awake it falls.
-    X = plant.EvalBodyPoseInWorld(plant_context, mug)
+    # Lift the mug (0.3 m from the target) 5 cm: asleep it stays in the air, awake it falls back onto the table.
+    X = plant.EvalBodyPoseInWorld(plant.GetMyContextFromRoot(context), mug)
     X.set_translation(X.translation() + [0, 0, 0.05])
     plant.SetFreeBodyPose(plant.GetMyMutableContextFromRoot(context), mug, X)
-    sleeper = ClutterSleep(ed.world, ClutterSleepConfig(wake_distance=0.5))
-    sleeper.sleep_all(context)
-    assert sleeper.asleep == ["mug"]  # the target never sleeps
-    sim.AdvanceTo(0.5)
-    assert sleeper.update(context) == []  # the robot is 3.5 m away
-    np.testing.assert_allclose(plant.EvalBodyPoseInWorld(plant_context, mug).translation(), X.translation(), atol=1e-9)
-    sleeper.wake_all(context)
-    sleeper = ClutterSleep(ed.world, ClutterSleepConfig(wake_distance=10.0))
-    sleeper.sleep_all(context)
-    assert sleeper.update(context) == ["mug"] and sleeper.asleep == []
-    sim.AdvanceTo(1.5)
-    # Awake, it falls the 5 cm and rests on the table again (its contact with the table is back).
-    z = plant.EvalBodyPoseInWorld(plant_context, mug).translation()[2]
-    assert X.translation()[2] - 0.065 < z < X.translation()[2] - 0.035
+    names = ClutterSleep(ed.world, ClutterSleepConfig(awake_radius=awake_radius)).sleep(context)
+    assert names == (["mug"] if asleep else [])  # the target never sleeps
+    sim.AdvanceTo(1.0)
+    z = plant.EvalBodyPoseInWorld(plant.GetMyContextFromRoot(context), mug).translation()[2]
+    if asleep:
+        assert z == pytest.approx(X.translation()[2], abs=1e-9)
+    else:
+        assert X.translation()[2] - 0.065 < z < X.translation()[2] - 0.035

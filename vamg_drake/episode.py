@@ -164,11 +164,10 @@ def _run(scenario: Scenario, config: DiagramConfig, out: Path | None, record: bo
     outcome = EpisodeOutcome()
     try:
         simulator.Initialize()
-        clutter.sleep_all(context)
+        clutter.sleep(context)
         while context.get_time() < t_end:
             t_next = min(context.get_time() + chunk, t_end)
             status = simulator.AdvanceTo(t_next)
-            clutter.update(context)
             path.append(ed.robot_state.GetOutputPort("configuration").Eval(robot_ctx)[:3].copy())
             bar.update(round(chunk, 3))
             outcome = ed.monitor.GetOutputPort("outcome").Eval(monitor_ctx)

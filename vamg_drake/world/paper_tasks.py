@@ -22,7 +22,10 @@ What the importer does, per scene:
    (``ycb.ycb_model_for_id``). The file poses the YCB scan frame S (the
    release's mesh frame), so an object's centroid O is placed at
    ``p_WS + R_WS p_SO``; objects still in contact deeper than 1 mm are lifted
-   out of it, then all are settled together in Drake for ``settle_time``. An object that moves more than ``max_displacement`` from
+   out of it, then all are settled together in Drake for ``settle_time``
+   with the episode's contact model (compliant hydroelastic objects, 10 ms
+   SAP steps; settled with point contact instead, light objects started
+   the episode in contact deep enough to launch them). An object that moves more than ``max_displacement`` from
    its file position, or ends off every receptacle, is reported
    (``ObjectReport``) and left out; a task whose target is left out is
    excluded with that reason. Nothing is moved silently: every object's
@@ -406,10 +409,13 @@ def settle_objects(layout: ReplicaCadLayout, objects: list[PlacedObject], settle
 
     from vamg_drake.world.replicacad import register_replicacad
     from vamg_drake.world.scene_geometry import SceneGeometryConfig, _proximity, add_ycb_body
+    from vamg_drake.world.world_builder import WorldConfig
 
-    geometry = SceneGeometryConfig(hydroelastic_modulus=None)
+    # The episode's own contact model and step (compliant-hydroelastic objects on rigid
+    # furniture, 10 ms SAP), so the settled poses are at rest in the episode too.
+    geometry = SceneGeometryConfig()
     builder = DiagramBuilder()
-    plant, _ = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.005, discrete_contact_approximation="sap"), builder)
+    plant, _ = AddMultibodyPlant(MultibodyPlantConfig(time_step=WorldConfig().time_step, discrete_contact_approximation="sap"), builder)
     register_replicacad(plant, plant.AddModelInstance("scene"), layout, _proximity(geometry, False, 0.05), visuals=False)
     plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(), HalfSpace(), "floor", _proximity(geometry, False, 0.05))
     bodies = [add_ycb_body(plant, obj.name, geometry, obj.model)[1] for obj in objects]

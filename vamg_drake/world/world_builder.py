@@ -86,8 +86,8 @@ class WorldConfig:
     #: contact normals tilted ~30 deg off the pad and the object slid out along
     #: the approach (box room: the tomato soup can left the closing fingers).
     hydroelastic_fingers: bool = True
-    #: Objects other than the target sleep (held still, no contact with the
-    #: welded scene) until the robot comes near; applied by the episode runner.
+    #: Objects away from the target sleep (held still, no contact with the
+    #: welded scene); applied by the episode runner.
     clutter_sleep: ClutterSleepConfig = dc.field(default_factory=ClutterSleepConfig)
 
 
