@@ -22,6 +22,8 @@ from vamg_drake.world.replicacad import (
     R_ZY,
     ReplicaCadError,
     find_replicacad_dir,
+    list_replicacad_scenes,
+    is_floor_covering_name,
     load_replicacad_layout,
     points_to_z_up,
     pose_to_z_up,
@@ -94,6 +96,20 @@ def test_scene_loads_with_level_surfaces_and_floor_at_zero(scene):
     # Everything sits in one horizontal slab: nothing above 3 m or under the floor.
     tops_z = np.array([max(p[:, 2].max() for p in b.pieces_W()) for b in layout.bodies if b.pieces_B])
     assert np.max(tops_z) < 3.0
+
+
+def test_floor_coverings_by_name_rest_on_the_floor_and_are_not_obstacles():
+    assert is_floor_covering_name("rc/020_frl_apartment_rug_01") and is_floor_covering_name("objects/frl_apartment_mat")
+    assert not is_floor_covering_name("rc/030_frl_apartment_material_box") and not is_floor_covering_name("rc/001_frl_apartment_table_01")
+    if "apt_1" not in list_replicacad_scenes(DATASET):
+        pytest.skip(f"apt_1 not in {DATASET}")
+    layout = load_replicacad_layout("apt_1")  # its rug_01 and mat float 3-5 cm above the floor in the scene file
+    coverings = [b for b in layout.bodies if is_floor_covering_name(b.name)]
+    assert len(coverings) == 3
+    for body in coverings:
+        z = np.concatenate(body.pieces_W())[:, 2]
+        assert body.floor_covering and abs(z.min()) < 1e-6 and z.max() < 0.03, (body.name, z.min(), z.max())
+    assert not any(is_floor_covering_name(box.name.rsplit("/", 1)[0]) for box in layout.obstacles)
 
 
 def test_receptacle_surface_matches_collision_top():

@@ -22,8 +22,12 @@ What is loaded, and how:
   perception role, so the depth camera sees it. Collision: the convex
   decomposition, one ``Convex`` per mesh node (built from the node's points in
   memory); configs without one use the render mesh's bounding box.
-  Floor coverings (collision top below ``FLOOR_COVERING_HEIGHT``: rugs, mats)
-  are visual only, so the base can drive over them.
+  Floor coverings are visual only, so the base can drive over them (as
+  ManiSkill's scene builder turns off the Fetch base's collisions with them):
+  bodies whose template name has a token in ``FLOOR_COVERING_TOKENS`` (rugs,
+  mats, carpets), lowered to rest on the floor where the scene file lets them
+  float a few centimetres above it, and any body whose collision top is below
+  ``FLOOR_COVERING_HEIGHT``.
 * **Articulated furniture** (``articulated_object_instances``): the URDF is
   read here (not by Drake's parser: its meshes are ``.glb`` and its frames
   Y-up) and every link becomes a welded body at its pose with all joints at
@@ -73,6 +77,14 @@ MANISKILL_DEFAULT_ASSET_DIR = Path("~/.maniskill/data")
 DATASET_ENV = "VAMG_REPLICACAD_DIR"
 #: A body whose collision top is below this [m] is a floor covering: visual only.
 FLOOR_COVERING_HEIGHT = 0.03
+#: Name tokens of floor coverings (ManiSkill's ``IGNORE_FETCH_COLLISION_STRS``).
+FLOOR_COVERING_TOKENS = ("mat", "rug", "carpet")
+
+
+def is_floor_covering_name(name: str) -> bool:
+    """True when a body or template name has a floor-covering token ("frl_apartment_rug_01")."""
+    tokens = re.split(r"[^a-z]+", Path(name).name.lower())
+    return any(t in FLOOR_COVERING_TOKENS for t in tokens)
 
 #: Y-up (Habitat, glTF) to Z-up (Drake): +90 degrees about x.
 R_ZY = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -509,7 +521,13 @@ class _Loader:
     def _add_body(self, name, X_H, visuals, pieces_B, source) -> SceneBody:
         X_WB = pose_to_z_up(X_H)
         top = max((float((p @ X_WB[:3, :3].T)[:, 2].max() + X_WB[2, 3]) for p in pieces_B), default=0.0)
-        body = SceneBody(name, X_WB, tuple(visuals), tuple(pieces_B), top < FLOOR_COVERING_HEIGHT, source)
+        floor_covering = top < FLOOR_COVERING_HEIGHT or is_floor_covering_name(name)
+        if floor_covering and pieces_B:
+            bottom = min(float((p @ X_WB[:3, :3].T)[:, 2].min() + X_WB[2, 3]) for p in pieces_B)
+            if bottom > 0.0:  # floating rug: rest it on the floor
+                X_WB = X_WB.copy()
+                X_WB[2, 3] -= bottom
+        body = SceneBody(name, X_WB, tuple(visuals), tuple(pieces_B), floor_covering, source)
         self.bodies.append(body)
         return body
 
