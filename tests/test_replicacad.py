@@ -27,8 +27,8 @@ from vamg_drake.world.replicacad import (
     load_replicacad_layout,
     points_to_z_up,
     pose_to_z_up,
-    replicacad_scenario,
 )
+from vamg_drake.world.replicacad_generator import generate_replicacad_scenario
 from vamg_drake.world.scenario import ReplicaCadScene, Scenario, ScenarioError, load_scenario, save_scenario, validate_scenario
 from vamg_drake.world.scene_geometry import add_scene
 
@@ -62,7 +62,7 @@ def scenarios() -> dict[str, Scenario]:
         return {}
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("VAMG_REPLICACAD_DIR", str(DATASET))
-        return {scene: replicacad_scenario(scene, seed=0, dataset_dir=None) for scene in SCENES}
+        return {scene: generate_replicacad_scenario(scene, seed=0, dataset_dir=None) for scene in SCENES}
 
 
 # ------------------------------------------------------------------ frames
@@ -159,7 +159,7 @@ def test_generated_scenario_is_valid_and_round_trips(scene, scenarios, tmp_path)
 
 
 def test_same_seed_same_scenario(scenarios):
-    again = replicacad_scenario("v3_sc1_staging_00", seed=0)
+    again = generate_replicacad_scenario("v3_sc1_staging_00", seed=0)
     assert again == scenarios["v3_sc1_staging_00"]
 
 

@@ -12,7 +12,7 @@ from pydrake.systems.analysis import Simulator
 
 from scenes import box_room_scenario
 from vamg_drake.bench.methods import known_methods, load_method
-from vamg_drake.diagram import STRATEGIES, DiagramConfig, build_diagram
+from vamg_drake.diagram import STRATEGIES, DiagramConfig, apply_strategy_defaults, build_diagram
 from vamg_drake.policy import synthetic_clouds as clouds
 from vamg_drake.policy.behaviour_tree import (
     BehaviourConfig,
@@ -32,7 +32,6 @@ from vamg_drake.policy.strategies import (
     NavAndManipBehaviour,
     StrategyConfig,
     StrategySamplers,
-    apply_strategy_defaults,
     make_strategy,
 )
 from vamg_drake.policy.subgoal_pipeline import SubgoalPipeline

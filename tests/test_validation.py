@@ -16,8 +16,8 @@ import pytest
 
 from scenes import box_room_scenario
 from vamg_drake.bench.methods import MethodError, load_method
-from vamg_drake.config_validation import InputError, diagram_config_problems, load_diagram_config, load_typed_file
-from vamg_drake.diagram import DiagramConfig
+from vamg_drake.config_validation import InputError, diagram_config_problems, load_typed_file
+from vamg_drake.diagram import DiagramConfig, load_diagram_config
 from vamg_drake.world.scenario import (
     Box,
     MoveAlongPath,

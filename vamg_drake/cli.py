@@ -3,7 +3,7 @@
     vamg run [--scenario FILE | --seed N [--dynamic]] [--config FILE] [--policy full|scripted] [--out DIR] [--time-limit S]
     vamg scenario generate --seed N --out FILE [--replicacad SCENE [--replicacad-dir DIR]]
     vamg scenario import-tasks TASK_FILE --out DIR [--dynamic] [--tasks K]
-    vamg maps build            (kinematic maps, when the policy package provides them)
+    vamg maps build            (kinematic maps)
     vamg bench --suite S --methods a,b [--seeds K] --out DIR [--workers N] [--backend local|ray] [--resume [--retry-errors]]
     vamg report DIR
 
@@ -24,18 +24,31 @@ import sys
 import tempfile
 from pathlib import Path
 
+from tqdm import tqdm
+
+from vamg_drake.bench.methods import MethodError, load_methods
+from vamg_drake.bench.report import write_report
+from vamg_drake.bench.results import ResultsError
+from vamg_drake.bench.runner import episode_specs, prepare_episode_caches, run_sweep
+from vamg_drake.bench.suites import SuiteError, materialize_suite, suite_config
+from vamg_drake.config_validation import InputError
+from vamg_drake.diagram import POLICIES, DiagramConfig, load_diagram_config
+from vamg_drake.episode import ERROR, run_episode
+from vamg_drake.policy.maps_cli import add_maps_subparser
 from vamg_drake.rendering_check import check_rendering_libraries
+from vamg_drake.world.paper_tasks import TaskFileError, import_scene, read_task_file
+from vamg_drake.world.replicacad import ReplicaCadError
+from vamg_drake.world.replicacad_generator import generate_replicacad_scenario
+from vamg_drake.world.rooms import GenerationError, RoomGeneratorConfig, generate_scenario
+from vamg_drake.world.scenario import MAX_TIME_LIMIT, Scenario, ScenarioError, load_scenario, save_scenario
 
 
-def _load_or_generate(args) -> "Scenario":  # noqa: F821
-    from vamg_drake.world.scenario import ScenarioError, load_scenario
-
+def _load_or_generate(args) -> Scenario:
     if args.scenario:
         try:
             return load_scenario(args.scenario)
         except (ScenarioError, FileNotFoundError) as e:
             raise SystemExit(f"vamg: {e}") from None
-    from vamg_drake.world.rooms import GenerationError, RoomGeneratorConfig, generate_scenario
 
     _check_seed(args.seed)
     dynamic = bool(getattr(args, "dynamic", False))
@@ -75,10 +88,7 @@ def _check_out_file(path: str, option: str = "--out") -> Path:
     return out
 
 
-def _load_diagram_config(path: str | None) -> "DiagramConfig":  # noqa: F821
-    from vamg_drake.config_validation import InputError, load_diagram_config
-    from vamg_drake.diagram import DiagramConfig
-
+def _load_diagram_config(path: str | None) -> DiagramConfig:
     if not path:
         return DiagramConfig()
     try:
@@ -88,12 +98,8 @@ def _load_diagram_config(path: str | None) -> "DiagramConfig":  # noqa: F821
 
 
 def _cmd_run(args) -> int:
-    from vamg_drake.diagram import POLICIES
-    from vamg_drake.episode import ERROR, run_episode
-
     if args.policy and args.policy not in POLICIES:
         raise SystemExit(f"vamg run: unknown --policy '{args.policy}' (known: {', '.join(POLICIES)})")
-    from vamg_drake.world.scenario import MAX_TIME_LIMIT
 
     if args.time_limit is not None and not (math.isfinite(args.time_limit) and 0 < args.time_limit <= MAX_TIME_LIMIT):
         raise SystemExit(f"vamg run: --time-limit: must be a positive number of seconds up to {MAX_TIME_LIMIT:g}, "
@@ -120,16 +126,11 @@ def _cmd_run(args) -> int:
 
 
 def _cmd_scenario_generate(args) -> int:
-    from vamg_drake.world.rooms import GenerationError, generate_scenario
-    from vamg_drake.world.scenario import save_scenario
-
     _check_seed(args.seed)
     out = _check_out_file(args.out)
     if args.replicacad:
-        from vamg_drake.world.replicacad import ReplicaCadError, replicacad_scenario
-
         try:
-            scenario = replicacad_scenario(args.replicacad, args.seed, dataset_dir=args.replicacad_dir)
+            scenario = generate_replicacad_scenario(args.replicacad, args.seed, dataset_dir=args.replicacad_dir)
         except ReplicaCadError as e:
             raise SystemExit(f"vamg scenario generate: {e}") from None
     else:
@@ -143,12 +144,6 @@ def _cmd_scenario_generate(args) -> int:
 
 
 def _cmd_scenario_import_tasks(args) -> int:
-    from tqdm import tqdm
-
-    from vamg_drake.world.paper_tasks import TaskFileError, import_scene, read_task_file
-    from vamg_drake.world.replicacad import ReplicaCadError
-    from vamg_drake.world.scenario import save_scenario
-
     if args.tasks is not None and args.tasks < 1:
         raise SystemExit(f"vamg scenario import-tasks: --tasks must be >= 1, got {args.tasks}")
     out = Path(args.out)
@@ -177,10 +172,6 @@ def _cmd_scenario_import_tasks(args) -> int:
 
 
 def _cmd_bench(args) -> int:
-    from vamg_drake.bench.methods import MethodError, load_methods
-    from vamg_drake.bench.runner import episode_specs, prepare_episode_caches, run_sweep
-    from vamg_drake.bench.suites import SuiteError, materialize_suite, suite_config
-
     try:
         config = suite_config(args.suite, scenes=args.scenes, targets=args.targets)
         if args.task_file:
@@ -211,9 +202,6 @@ def _cmd_bench(args) -> int:
 
 
 def _cmd_report(args) -> int:
-    from vamg_drake.bench.report import write_report
-    from vamg_drake.bench.results import ResultsError
-
     try:
         path = write_report(args.dir)
     except (FileNotFoundError, ResultsError) as e:
@@ -281,12 +269,7 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument("dir", help="results directory (holding results.jsonl)")
     report.set_defaults(func=_cmd_report)
 
-    try:
-        from vamg_drake.policy.maps_cli import add_maps_subparser
-    except ImportError:
-        pass
-    else:
-        add_maps_subparser(sub)
+    add_maps_subparser(sub)
     return parser
 
 

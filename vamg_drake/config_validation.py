@@ -339,31 +339,3 @@ def check_diagram_config(config, source: str = "DiagramConfig") -> None:
     problems = diagram_config_problems(config)
     if problems:
         raise InputError([f"{source}: {p}" for p in problems])
-
-
-def load_diagram_config(path: str | Path, source: str | None = None, text: str | None = None):
-    """Reads and fully checks a (partial) ``DiagramConfig`` YAML file; defaults fill the rest.
-
-    Args:
-        path: the file.
-        source: how problems name the file (default: the path as given).
-        text: the file's text when the caller has read it already.
-
-    Raises:
-        InputError: one "<source>: <field>: <message>" line per problem.
-    """
-    from vamg_drake.diagram import DiagramConfig  # (the diagram imports every system)
-
-    source = source or str(path)
-    if text is None:
-        config = load_typed_file(path, DiagramConfig, DiagramConfig(), source)
-    else:
-        config = load_typed_text(text, DiagramConfig, DiagramConfig(), source)
-    check_diagram_config(config, source)
-    try:
-        config.validate()  # the enumerations (policy, strategy, gaze variant)
-    except InputError as e:
-        raise InputError([f"{source}: {p}" for p in e.problems]) from None
-    except ValueError as e:
-        raise InputError([f"{source}: {' '.join(str(e).split())}"]) from None
-    return config

@@ -24,6 +24,7 @@ import traceback
 from pathlib import Path
 
 import numpy as np
+from pydrake.geometry import StartMeshcat
 from pydrake.systems.analysis import Simulator
 from tqdm import tqdm
 
@@ -68,8 +69,6 @@ class EpisodeResult:
 
 
 def _start_meshcat():
-    from pydrake.geometry import StartMeshcat
-
     try:
         return StartMeshcat()
     except Exception as e:  # noqa: BLE001  (no free port, sandbox, ...)

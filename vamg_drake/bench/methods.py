@@ -20,8 +20,8 @@ import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
-from vamg_drake.config_validation import InputError, load_diagram_config, parse_yaml_mapping
-from vamg_drake.diagram import DiagramConfig
+from vamg_drake.config_validation import InputError, parse_yaml_mapping
+from vamg_drake.diagram import DiagramConfig, load_diagram_config
 
 METHODS_DIR = Path(__file__).parent / "methods"
 #: The six methods of the paper's results table, in its row order.

@@ -28,10 +28,11 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+import trimesh
 from pydrake.geometry import AddContactMaterial, AddRigidHydroelasticProperties, Box, ProximityProperties
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.multibody.plant import AddMultibodyPlant, CoulombFriction, MultibodyPlantConfig
-from pydrake.multibody.tree import PdControllerGains, PrismaticJoint, SpatialInertia
+from pydrake.multibody.tree import FixedOffsetFrame, PdControllerGains, PrismaticJoint, SpatialInertia
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
@@ -124,8 +125,6 @@ class OracleGraspResult:
 
 
 def _hull_vertices_W(scenario: Scenario, name: str) -> np.ndarray:
-    import trimesh
-
     asset = load_ycb_asset(scenario.object(name).ycb_model)
     obj = scenario.object(name)
     mesh = trimesh.load(str(asset.collision_path), force="mesh")
@@ -308,8 +307,6 @@ def _simulate(scenario: Scenario, name: str, candidate: GraspCandidate, config: 
 
 
 def _fixed_frame(name: str, parent, X_PF: RigidTransform):
-    from pydrake.multibody.tree import FixedOffsetFrame
-
     return FixedOffsetFrame(name, parent, X_PF)
 
 

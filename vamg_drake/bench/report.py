@@ -28,6 +28,8 @@ import math
 from collections import defaultdict
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
 from vamg_drake.bench.methods import PAPER_METHODS
@@ -189,10 +191,7 @@ def completeness_curve(directory: str | Path) -> dict[int, float] | None:
 
 def plot_success(rows: list[dict], path: str | Path) -> None:
     """Success rate per method and suite with 95 % Wilson error bars."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     suites = sorted({r["suite"] for r in rows})
     methods = method_order({r["method"] for r in rows})
@@ -216,10 +215,7 @@ def plot_success(rows: list[dict], path: str | Path) -> None:
 
 def plot_failures(rows: list[dict], path: str | Path) -> None:
     """Stacked outcome categories per (suite, method)."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     labels = [f"{r['suite']}\n{r['method']}" for r in rows]
     fig, ax = plt.subplots(figsize=(max(6, 1.1 * len(rows)), 4.5))
@@ -239,10 +235,7 @@ def plot_failures(rows: list[dict], path: str | Path) -> None:
 
 def plot_spl(rows: list[dict], path: str | Path) -> None:
     """SPL per (suite, method)."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(max(6, 1.1 * len(rows)), 4))
     ax.bar([f"{r['suite']}\n{r['method']}" for r in rows], [0.0 if math.isnan(r["spl"]) else r["spl"] for r in rows])
@@ -255,10 +248,7 @@ def plot_spl(rows: list[dict], path: str | Path) -> None:
 
 def plot_per_scene(records: list[dict], path: str | Path) -> None:
     """Per-scene success rates (one dot per scene) per (suite, method)."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     groups = _groups(records, "suite", "method")
     keys = sorted(groups, key=lambda k: (k[0], method_order({m for _, m in groups}).index(k[1])))
@@ -276,10 +266,7 @@ def plot_per_scene(records: list[dict], path: str | Path) -> None:
 
 def plot_trigger_sweep(rows: list[dict], path: str | Path) -> None:
     """Success and collision rate vs trigger distance."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 4))
     for (suite, method), rs in _groups(rows, "suite", "method").items():
@@ -296,10 +283,7 @@ def plot_trigger_sweep(rows: list[dict], path: str | Path) -> None:
 
 def plot_completeness(curve: dict[int, float], path: str | Path) -> None:
     """Pre-grasp sampling success vs number of samples."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(5, 3.5))
     ax.plot(list(curve), [100.0 * v for v in curve.values()], "o-")
@@ -313,10 +297,7 @@ def plot_completeness(curve: dict[int, float], path: str | Path) -> None:
 
 def plot_compute_cost(rows: list[dict], path: str | Path) -> None:
     """Mean ms per call per module, one group of bars per method."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     modules = sorted({r["module"] for r in rows})
     methods = method_order({r["method"] for r in rows})

@@ -38,9 +38,13 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from vamg_drake.bench.methods import Method
+from vamg_drake.bench.methods import Method, MethodError, load_method
 from vamg_drake.bench.results import ERROR, RESULTS_FILE, SUCCESS, EpisodeRecord, ResultsWriter, recorded, results_lock
 from vamg_drake.bench.suites import Suite, with_trigger_distance
+from vamg_drake.episode import run_episode
+from vamg_drake.policy.kinematic_maps import KinematicMaps
+from vamg_drake.provenance import provenance
+from vamg_drake.world.scenario import load_scenario
 
 log = logging.getLogger(__name__)
 
@@ -119,10 +123,6 @@ def run_scenario_episode(spec: EpisodeSpec):
     Returns:
         ``vamg_drake.episode.EpisodeResult``.
     """
-    from vamg_drake.bench.methods import load_method
-    from vamg_drake.episode import run_episode
-    from vamg_drake.world.scenario import load_scenario
-
     scenario = with_trigger_distance(load_scenario(spec.scenario_file), spec.trigger_distance)
     config = load_method(spec.method_file).config
     if hasattr(config, "seed"):
@@ -136,9 +136,6 @@ EpisodeFn = Callable[[EpisodeSpec], object]
 @functools.cache
 def _method_provenance(method_file: str, run_seed: int) -> dict:
     """Provenance for a record whose worker sent none (it died or raised)."""
-    from vamg_drake.bench.methods import MethodError, load_method
-    from vamg_drake.provenance import provenance
-
     try:
         config = load_method(method_file).config
     except MethodError:
@@ -165,12 +162,10 @@ def _record(spec: EpisodeSpec, status: str, wall: float, result: dict | None = N
 
 
 def _child(conn, episode_fn: EpisodeFn, spec: EpisodeSpec, parent: int) -> None:
-    import logging as _logging
-
     # Warnings to the sweep's stderr; the episode's own INFO log goes to its file.
-    stderr = _logging.StreamHandler()
-    stderr.setLevel(_logging.WARNING)
-    _logging.basicConfig(level=_logging.WARNING, handlers=[stderr])
+    stderr = logging.StreamHandler()
+    stderr.setLevel(logging.WARNING)
+    logging.basicConfig(level=logging.WARNING, handlers=[stderr])
     threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
     try:
         result = episode_fn(spec)
@@ -281,8 +276,6 @@ def prepare_episode_caches(methods) -> None:
     scripted driver) loads; without this, each worker of a fresh machine
     built the same maps at once in its first episode (about 4 minutes each)."""
     if any(m.config.policy != "scripted" for m in methods):
-        from vamg_drake.policy.kinematic_maps import KinematicMaps
-
         KinematicMaps.load_or_build()
 
 

@@ -35,9 +35,14 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from tqdm import tqdm
+
 from vamg_drake.bench.metrics import ShortestPathConfig, shortest_base_path
 from vamg_drake.bench.oracle_grasp import OracleGraspConfig, check_graspable
+from vamg_drake.config_validation import InputError, load_typed_file
 from vamg_drake.world.paper_tasks import PaperTaskConfig, TaskFileError, import_scene, read_task_file
+from vamg_drake.world.replicacad import ReplicaCadError, find_replicacad_dir
+from vamg_drake.world.replicacad_generator import generate_replicacad_scenario
 from vamg_drake.world.rooms import GenerationError, RoomGeneratorConfig, generate_scenario, retarget_scenario, target_candidates
 from vamg_drake.world.scenario import AppearAtDistance, Scenario, ScenarioError, load_scenario, save_scenario
 
@@ -163,8 +168,6 @@ def suite_config(name_or_path: str, scenes: int | None = None, targets: int | No
     elif path.suffix in (".yaml", ".yml"):
         if not path.exists():
             raise SuiteError(f"suite file {path}: no such file")
-        from vamg_drake.config_validation import InputError, load_typed_file
-
         try:
             config = load_typed_file(path, SuiteConfig, SuiteConfig(name=path.stem), source=f"suite file {path}")
         except InputError as e:  # names the file and the field
@@ -247,8 +250,6 @@ def _build(config: SuiteConfig, directory: Path, progress: bool) -> Suite:
         return _build_paper_tasks(config, directory, progress)
     if config.replicacad_scenes:
         return _build_replicacad(config, directory, progress)
-    from tqdm import tqdm
-
     room_config = config.room_config()
     (directory / "scenarios").mkdir(parents=True, exist_ok=True)
     scenarios: list[SuiteScenario] = []
@@ -295,10 +296,6 @@ def _build(config: SuiteConfig, directory: Path, progress: bool) -> Suite:
 
 def _build_replicacad(config: SuiteConfig, directory: Path, progress: bool) -> Suite:
     """Scenarios in ReplicaCAD scenes: scene k is replicacad_scenes[k % n], slot t is generator seed 1000 k + t."""
-    from tqdm import tqdm
-
-    from vamg_drake.world.replicacad import ReplicaCadError, find_replicacad_dir, replicacad_scenario
-
     dataset = find_replicacad_dir()
     if dataset is None:
         raise SuiteError(f"suite {config.name}: no ReplicaCAD dataset found (set MS_ASSET_DIR, VAMG_REPLICACAD_DIR, "
@@ -312,7 +309,7 @@ def _build_replicacad(config: SuiteConfig, directory: Path, progress: bool) -> S
         for slot in range(config.targets_per_scene):
             bar.update(1)
             try:
-                scenario = replicacad_scenario(scene_name, scene * 1000 + slot, dataset)
+                scenario = generate_replicacad_scenario(scene_name, scene * 1000 + slot, dataset)
             except (ReplicaCadError, GenerationError) as e:
                 excluded.append({"scene": scene, "object": None, "reason": f"{scene_name}: {e}"})
                 continue
@@ -357,10 +354,6 @@ def resolve_task_file(config: SuiteConfig) -> Path:
 
 def _build_paper_tasks(config: SuiteConfig, directory: Path, progress: bool) -> Suite:
     """The authors' tasks: scene k of the file is suite scene k, task t its target slot t."""
-    from tqdm import tqdm
-
-    from vamg_drake.world.replicacad import ReplicaCadError, find_replicacad_dir
-
     if find_replicacad_dir() is None:
         raise SuiteError(f"suite {config.name}: no ReplicaCAD dataset found (set MS_ASSET_DIR, VAMG_REPLICACAD_DIR, "
                          "or download it with `python -m mani_skill.utils.download_asset ReplicaCAD`)")

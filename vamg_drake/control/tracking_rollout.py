@@ -1,7 +1,7 @@
 """Kinematic roll-outs of the whole-body tracker (tests and benchmarks).
 
 The tracker runs at its period; between its calls the command is held and
-integrated by `vamg_drake.systems.robot_command.integrate_command`, the same
+integrated by `vamg_drake.control.command_integration.integrate_command`, the same
 integrator (unicycle base, clamped rates, joint limits) the diagram uses.
 Also: seeded reference paths (straight, arc, Reeds-Shepp with a cusp).
 """
@@ -11,13 +11,13 @@ import time
 
 import numpy as np
 
+from vamg_drake.control.command_integration import integrate_command
 from vamg_drake.control.whole_body_tracker import TrackerCommand, WholeBodyTrackerCore
 from vamg_drake.planning import reeds_shepp
 from vamg_drake.planning.smoothing import time_parametrize
 from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.robot import layout
 from vamg_drake.robot.kinematics import NX
-from vamg_drake.systems.robot_command import integrate_command
 
 
 @dc.dataclass

@@ -39,6 +39,7 @@ import numpy as np
 
 from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics
+from vamg_drake.robot.kinematics import FetchKinematics
 
 _log = logging.getLogger(__name__)
 
@@ -313,8 +314,6 @@ class FetchGazeCameras:
     HEAD_PARENT_LINK = "torso_lift_link"
 
     def __init__(self, candidates: np.ndarray):
-        from vamg_drake.robot.kinematics import FetchKinematics
-
         self._kin = FetchKinematics.instance()
         self.candidates = np.asarray(candidates, dtype=float)
         q_ref = layout.stow_configuration(0.0, 0.0, 0.0)

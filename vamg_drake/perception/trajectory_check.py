@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from scipy.spatial import cKDTree
 
 #: The grid never has more cells than this (the cell edge grows instead).
 _MAX_CELLS = 2_000_000
@@ -112,8 +113,6 @@ def first_colliding_waypoint_reference(
     points_W: np.ndarray, sphere_centers_W: np.ndarray, sphere_radii: np.ndarray, margin: float = 0.0
 ) -> int:
     """A straightforward SciPy reference: a k-d tree over the points, one ball query per sphere."""
-    from scipy.spatial import cKDTree
-
     p = np.asarray(points_W, dtype=float).reshape(-1, 3)
     if p.shape[0] == 0:
         return -1

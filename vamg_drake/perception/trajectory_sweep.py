@@ -14,6 +14,7 @@ import numpy as np
 
 from vamg_drake.perception.trajectory_check import SweptSphereIndex
 from vamg_drake.robot import layout
+from vamg_drake.robot.spheres import SphereModel
 
 
 class TrajectorySweep:
@@ -39,8 +40,6 @@ class TrajectorySweep:
         if not dt > 0.0:
             raise ValueError(f"TrajectorySweep.dt must be positive, got {dt}")
         if sphere_model is None:
-            from vamg_drake.robot.spheres import SphereModel
-
             sphere_model = SphereModel.load()
         self.dt = float(dt)
         self.t0 = float(times[0])

@@ -42,6 +42,9 @@ import numba
 import numpy as np
 
 from vamg_drake.robot import layout
+from vamg_drake.robot.kinematics import FetchKinematics
+from vamg_drake.robot.spheres import SphereModel
+from vamg_drake.world.primitives import WorldBox, WorldCylinder
 
 SQRT3 = math.sqrt(3.0)
 
@@ -230,8 +233,6 @@ class CollisionEnvironment:
 
         Primitives whose top is below `min_top_z` (the floor) are skipped.
         """
-        from vamg_drake.world.primitives import WorldBox, WorldCylinder
-
         boxes = [p for p in primitives if isinstance(p, WorldBox) and p.z_range()[1] > min_top_z]
         cyls = [p for p in primitives if isinstance(p, WorldCylinder)]
         return CollisionEnvironment(
@@ -1336,9 +1337,6 @@ class CollisionChecker:
     @staticmethod
     def for_fetch(env: CollisionEnvironment, config: CollisionCheckerConfig | None = None) -> "CollisionChecker":
         """The checker for the authored Fetch model and its sphere model."""
-        from vamg_drake.robot.kinematics import FetchKinematics
-        from vamg_drake.robot.spheres import SphereModel
-
         spheres = SphereModel.load()
         tree = FetchKinematics.instance().tree
         return CollisionChecker(tree, spheres.link_index, spheres.center_L, spheres.radius,

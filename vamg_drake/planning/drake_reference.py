@@ -12,9 +12,16 @@ siblings such as the torso links overlap by design).
 from __future__ import annotations
 
 import numpy as np
+from pydrake.geometry import Box, Cylinder, SceneGraph
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
+from pydrake.systems.framework import DiagramBuilder
 
 from vamg_drake.robot import layout
 from vamg_drake.robot.kinematics import DEFAULT_FINGER, fetch_urdf_path
+from vamg_drake.robot.spheres import SphereModel
+from vamg_drake.world.primitives import WorldBox, WorldCylinder
 
 
 class DrakeCollisionWorld:
@@ -29,14 +36,6 @@ class DrakeCollisionWorld:
 
     def __init__(self, obstacles, self_collision_links: set[tuple[str, str]] | None = None,
                  min_top_z: float = 0.01):
-        from pydrake.geometry import Box, Cylinder, SceneGraph
-        from pydrake.math import RigidTransform, RotationMatrix
-        from pydrake.multibody.parsing import Parser
-        from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
-        from pydrake.systems.framework import DiagramBuilder
-
-        from vamg_drake.world.primitives import WorldBox, WorldCylinder
-
         builder = DiagramBuilder()
         plant = MultibodyPlant(0.0)
         scene_graph = SceneGraph()
@@ -115,8 +114,6 @@ class DrakeCollisionWorld:
 
 
 def _sphere_model_link_pairs() -> set[tuple[str, str]]:
-    from vamg_drake.robot.spheres import SphereModel
-
     m = SphereModel.load()
     names = m.link_names
     li = m.link_index

@@ -13,10 +13,13 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from scipy import ndimage
 
-from vamg_drake.planning.collision import CollisionChecker
+from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment
 from vamg_drake.robot import layout
 from vamg_drake.world.primitives import WorldBox, rotation_z
+from vamg_drake.world.rooms import FloorGrid, generate_scenario
+from vamg_drake.world.scenario import ROBOT_FOOTPRINT_RADIUS, static_obstacle_shapes
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -63,8 +66,6 @@ def make_problem(seed: int, checker: CollisionChecker, min_distance: float = 3.0
                  max_tries: int = 2000) -> PlanningProblem:
     """A problem whose start and goal are free for `checker` over its current
     environment (set it to the room's primitives first, see `make_problems`)."""
-    from vamg_drake.planning.collision import CollisionEnvironment
-
     rng = np.random.default_rng(seed)
     width, depth = 6.0, 5.0
     obstacles = furnished_room(rng, width, depth)
@@ -117,11 +118,6 @@ def room_problem(seed: int, checker: CollisionChecker, min_distance: float = 2.5
     blocked by furniture (for the base footprint) are preferred; such a goal
     is found for most seeds (`PlanningProblem.blocked` says).
     """
-    from vamg_drake.planning.collision import CollisionEnvironment
-    from vamg_drake.world.rooms import FloorGrid, generate_scenario
-    from vamg_drake.world.scenario import ROBOT_FOOTPRINT_RADIUS, static_obstacle_shapes
-    from scipy import ndimage
-
     scenario = generate_scenario(seed)
     obstacles = [s for s in static_obstacle_shapes(scenario) if s.z_range()[1] > 0.01]
     rng = np.random.default_rng([seed, 7919])

@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from pydrake.trajectories import PiecewisePolynomial
 
 from vamg_drake.robot import layout
 
@@ -158,8 +159,6 @@ class TimedTrajectory:
 
     def to_piecewise_polynomial(self):
         """The same trajectory as a Drake first-order-hold PiecewisePolynomial."""
-        from pydrake.trajectories import PiecewisePolynomial
-
         if self.num_waypoints == 1:
             return PiecewisePolynomial(self.q[0].reshape(-1, 1))
         return PiecewisePolynomial.FirstOrderHold(self.times, self.q.T)

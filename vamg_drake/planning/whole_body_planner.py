@@ -72,7 +72,7 @@ import numpy as np
 from vamg_drake.planning import smoothing, whole_body_rrt
 from vamg_drake.planning.arm_roadmap import ArmRoadmap
 from vamg_drake.planning.base_costmap import base_costmap
-from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment, densify, densify_indexed
+from vamg_drake.planning.collision import CollisionChecker, CollisionCheckerConfig, CollisionEnvironment, densify, densify_indexed
 from vamg_drake.planning.hybrid_astar import Footprint2D, HybridAStar, HybridAStarConfig
 from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.planning.whole_body_rrt import KernelRRTConfig, RRTConnectSearch, WholeBodySearchSpace
@@ -389,7 +389,6 @@ class WholeBodyPlanner:
     @staticmethod
     def for_fetch(env: CollisionEnvironment, config: PlannerConfig | None = None) -> "WholeBodyPlanner":
         config = config or PlannerConfig()
-        from vamg_drake.planning.collision import CollisionCheckerConfig
 
         cc = CollisionChecker.for_fetch(
             env, CollisionCheckerConfig(motion_resolution=config.motion_resolution,
@@ -464,6 +463,30 @@ class WholeBodyPlanner:
         whole_body_rrt.warm_up(WholeBodySearchSpace.along_path(self.checker, poses))
         self._synchronized_path(poses, np.zeros((2, layout.NQ - 3)))
         self._base_planner(poses[0], poses[1]).warm_up()
+        self._warm_up_plan()
+
+    def _warm_up_plan(self) -> None:
+        """Plans once around a wall, to a table, in a map made of points (the
+        episode's kind of environment): the kernels' specializations for a
+        point map are compiled here, not inside an episode's first plan where
+        the compile time would fire the wall-clock safety net. The planner's
+        environment, counters and configuration are restored."""
+        rng = np.random.default_rng(0)
+        n = 1500
+        wall = np.column_stack([np.full(n, 1.2), rng.uniform(-0.8, 0.8, n), rng.uniform(0.0, 1.4, n)])
+        table = np.column_stack([rng.uniform(2.6, 3.2, n), rng.uniform(-0.4, 0.4, n), np.full(n, 0.7)])
+        env = CollisionEnvironment.from_points(np.concatenate([wall, table]), resolution=0.05)
+        q_start = layout.stow_configuration(0.0, 0.0, 0.0)
+        q_goal = layout.stow_configuration(3.0, 0.9, 0.0)
+        q_goal[3:] = [0.3, 0.5, -0.3, 0.2, 1.2, 0.1, 0.8, 0.0]
+        saved_env, saved_config, saved_hits = self.checker.env, self.config, self.wall_limit_hits
+        self.config = dataclasses.replace(saved_config, attempt_wall_limit_s=float("inf"))
+        try:
+            self.set_environment(env)
+            self.plan(q_start, q_goal)
+        finally:
+            self.config, self.wall_limit_hits = saved_config, saved_hits
+            self.set_environment(saved_env)
 
     # -- validation ------------------------------------------------------------
 

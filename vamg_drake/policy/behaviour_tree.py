@@ -197,6 +197,15 @@ class SubgoalCommand:
     reason: str = ""
 
 
+@dc.dataclass(frozen=True)
+class MotionFeedback:
+    """What the motion layer reports about goal ``goal_id`` (the value of the
+    planner's ``motion_feedback`` output, the policy's input of that name)."""
+
+    goal_id: int = -1
+    event: MotionEvent = MotionEvent.NONE
+
+
 @dc.dataclass
 class _State:
     """Mutable state shared by the tree's behaviours."""

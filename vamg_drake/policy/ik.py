@@ -19,9 +19,16 @@ import math
 
 import numba
 import numpy as np
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.multibody.inverse_kinematics import InverseKinematics
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
+from pydrake.solvers import Solve
+from pydrake.systems.framework import DiagramBuilder
 
 from vamg_drake.policy.arm_chain import CHAIN_LOWER, CHAIN_UPPER, N_CHAIN, ArmChain, _chain_one, _chain_scratch, base_poses
 from vamg_drake.robot import layout
+from vamg_drake.robot.kinematics import GRASP_FRAME, fetch_urdf_path
 
 
 @dc.dataclass
@@ -196,12 +203,6 @@ class DrakeIk:
     """
 
     def __init__(self, config: IkConfig | None = None, collision_distance: float | None = None) -> None:
-        from pydrake.multibody.parsing import Parser
-        from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
-        from pydrake.systems.framework import DiagramBuilder
-
-        from vamg_drake.robot.kinematics import GRASP_FRAME, fetch_urdf_path
-
         self.config = config or IkConfig()
         self.collision_distance = collision_distance
         builder = DiagramBuilder()
@@ -235,10 +236,6 @@ class DrakeIk:
         Returns:
             (q (11,) wrapped, success).
         """
-        from pydrake.math import RigidTransform, RotationMatrix
-        from pydrake.multibody.inverse_kinematics import InverseKinematics
-        from pydrake.solvers import Solve
-
         cfg = self.config
         context = self.diagram.CreateDefaultContext()
         plant_context = self.plant.GetMyMutableContextFromRoot(context)

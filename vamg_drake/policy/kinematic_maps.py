@@ -39,6 +39,7 @@ from pathlib import Path
 import numba
 import numpy as np
 from scipy import ndimage
+from tqdm import tqdm
 
 from vamg_drake.policy.arm_chain import (
     CHAIN_CONTINUOUS,
@@ -346,8 +347,6 @@ class KinematicMaps:
     @staticmethod
     def build(config: KinematicMapsConfig | None = None, progress: bool = True) -> "KinematicMaps":
         """Samples the chain and builds all three maps (minutes for the defaults)."""
-        from tqdm import tqdm
-
         config = config or KinematicMapsConfig()
         config.__post_init__()  # YAML-loaded configs skip __post_init__
         chain = ArmChain.load()

@@ -3,8 +3,9 @@
 Every method of the paper shares the world, the map, the whole-body planner,
 the tracker and the gaze optimizer; they differ in how the subgoals are chosen
 (``DiagramConfig.strategy``) and in a few system settings
-(`apply_strategy_defaults`). Each strategy is a behaviour with the interface of
-`SubgoalBehaviour` (``step``, ``phase``, ``goal_id``, ``history``, ...) and reuses
+(`vamg_drake.diagram.apply_strategy_defaults`). Each strategy is a behaviour
+with the interface of `SubgoalBehaviour` (``step``, ``phase``, ``goal_id``,
+``history``, ...) and reuses
 its grasp execution (GRASP_MOVE planned to the pre-grasp pose -> GRASP_APPROACH
 linear -> GRASP_CLOSE -> GRASP_LIFT) and its command building. Only the choice
 of goals differs; no py_trees tree is ticked.
@@ -17,7 +18,7 @@ Strategies (paper "Baselines" and appendix "System-Level Comparisons"):
   resampling. The planner still replans the path to the same goal when the
   map invalidates it; a goal the map has put in collision, a motion failure or
   a failed sample ends the episode. No gaze optimization (the gaze looks at
-  the target only, set by `apply_strategy_defaults`).
+  the target only, set by `vamg_drake.diagram.apply_strategy_defaults`).
 * ``nav_and_manip`` -- navigation and manipulation decoupled: drive with the
   arm stowed to a base pose at a fixed distance from the target
   (``StrategyConfig.nav_standoff``), facing it, collision-free and seeing it in
@@ -34,10 +35,11 @@ Strategies (paper "Baselines" and appendix "System-Level Comparisons"):
   the sampled reachability holds for that height only.
 * ``closed_loop_replanning`` -- no stages: sample the whole-body pre-grasp
   configuration and replan continuously towards it (the planner's
-  ``replan_period``, set by `apply_strategy_defaults`) until it is reached, then
-  grasp from there. A failed motion, a pre-grasp the map has put in collision,
-  or no grasp from the reached pre-grasp resamples the pre-grasp (at most
-  ``max_pregrasp_goals`` samples; invalidations do not count).
+  ``replan_period``, set by `vamg_drake.diagram.apply_strategy_defaults`)
+  until it is reached, then grasp from there. A failed motion, a pre-grasp
+  the map has put in collision, or no grasp from the reached pre-grasp
+  resamples the pre-grasp (at most ``max_pregrasp_goals`` samples;
+  invalidations do not count).
 
 For every strategy the navigation goal runs in the PREGRASP phase (the phase
 the scenario's table-top obstacles key on) and the observe goal in OBSERVE.
@@ -49,11 +51,10 @@ after motion failures (including the ``max_total_failures`` and
 is used up by samples that could not be reached.
 """
 
-import copy
 import dataclasses as dc
 import time
 import traceback
-from typing import TYPE_CHECKING, Callable
+from typing import Callable
 
 import numpy as np
 
@@ -70,11 +71,9 @@ from vamg_drake.policy.behaviour_tree import (
     SubgoalSamplers,
 )
 from vamg_drake.policy.observe_sampler import ObserveConfig, ObserveSampler
+from vamg_drake.policy.subgoal_pipeline import SubgoalPipeline
 from vamg_drake.robot import layout
 
-if TYPE_CHECKING:  # imported for annotations only (diagram imports this module's users)
-    from vamg_drake.diagram import DiagramConfig
-    from vamg_drake.policy.subgoal_pipeline import SubgoalPipeline
 
 #: Goal validity under the current map: (inputs, q_goal (11,)) -> collision-free?
 GoalCheckFn = Callable[[PolicyInputs, np.ndarray], bool]
@@ -435,7 +434,7 @@ class StandoffBaseSampler:
     from the target, facing it, navigable, collision-free and seeing it; the
     one nearest to the current base wins. Poses near a rejected goal are skipped."""
 
-    def __init__(self, pipeline: "SubgoalPipeline", config: StrategyConfig) -> None:
+    def __init__(self, pipeline: SubgoalPipeline, config: StrategyConfig) -> None:
         self.pipeline = pipeline
         self.config = config
         self.sampler = ObserveSampler(pipeline.visibility, ObserveConfig(
@@ -476,7 +475,7 @@ class CapmapBaseSampler:
     """capmap_placement's navigation goal: the base (and torso) of a whole-body
     pre-grasp sample with the arm stowed, collision-free in the current map."""
 
-    def __init__(self, pipeline: "SubgoalPipeline", config: StrategyConfig) -> None:
+    def __init__(self, pipeline: SubgoalPipeline, config: StrategyConfig) -> None:
         self.pipeline = pipeline
         self.config = config
 
@@ -497,7 +496,7 @@ class CapmapBaseSampler:
             f"{self.config.capmap_tries} capability-map base poses collide with the arm stowed", FailureCategory.SUBGOAL)
 
 
-def _timed(pipeline: "SubgoalPipeline", name: str, sampler: SamplerFn) -> SamplerFn:
+def _timed(pipeline: SubgoalPipeline, name: str, sampler: SamplerFn) -> SamplerFn:
     def timed(inputs: PolicyInputs) -> SubgoalProposal:
         t0 = time.perf_counter()
         try:
@@ -508,7 +507,7 @@ def _timed(pipeline: "SubgoalPipeline", name: str, sampler: SamplerFn) -> Sample
     return timed
 
 
-def goal_check(pipeline: "SubgoalPipeline") -> GoalCheckFn:
+def goal_check(pipeline: SubgoalPipeline) -> GoalCheckFn:
     """The pipeline's collision check of one goal under the inputs' map."""
     def goal_is_free(inputs: PolicyInputs, q_goal: np.ndarray) -> bool:
         is_free = pipeline.collision_fn(_finite_points(inputs), np.asarray(inputs.p_WT, float), np.asarray(inputs.q, float))
@@ -516,7 +515,7 @@ def goal_check(pipeline: "SubgoalPipeline") -> GoalCheckFn:
     return goal_is_free
 
 
-def strategy_samplers(strategy: str, pipeline: "SubgoalPipeline", config: StrategyConfig | None = None) -> StrategySamplers:
+def strategy_samplers(strategy: str, pipeline: SubgoalPipeline, config: StrategyConfig | None = None) -> StrategySamplers:
     """The goal generators of ``strategy`` over the real samplers of ``pipeline``."""
     config = config or StrategyConfig()
     config.__post_init__()  # YAML-loaded configs skip __post_init__
@@ -532,7 +531,7 @@ def strategy_samplers(strategy: str, pipeline: "SubgoalPipeline", config: Strate
 
 def make_strategy(
     strategy: str,
-    pipeline: "SubgoalPipeline",
+    pipeline: SubgoalPipeline,
     behaviour_config: BehaviourConfig | None = None,
     config: StrategyConfig | None = None,
 ) -> SubgoalBehaviour:
@@ -546,37 +545,3 @@ def make_strategy(
     if strategy == "subgoal_tree":
         return SubgoalBehaviour(pipeline.samplers(), behaviour_config)
     return BEHAVIOURS[strategy](strategy_samplers(strategy, pipeline, config), behaviour_config, config)
-
-
-def apply_strategy_defaults(config: "DiagramConfig", strategy_config: StrategyConfig | None = None) -> "DiagramConfig":
-    """A copy of ``config`` with the system settings its strategy implies.
-
-    Settings still at their defaults are changed; values a method's YAML set
-    explicitly are kept.
-
-    * ``direct_grasping``: no gaze optimization -> ``gaze.variant = "target_only"``.
-    * ``closed_loop_replanning``: continuous replanning -> ``planner.replan_period``
-      (``StrategyConfig.replan_period``, 1 s: the planner's budget, 3 attempts
-      of 1500 RRT-Connect iterations, ~0.1-0.2 s each on an idle machine,
-      so replanning at 1 Hz keeps it at most ~60 % of one core in the worst case
-      and ~10 % typically, while the 10 Hz map still triggers the
-      invalidation replans in between; at 1.5 m/s the base moves at most 1.5 m
-      between periodic replans, within the 2.5 m map crop. Faster replanning
-      also makes the tracker switch references more often, the oscillation the
-      paper reports for this design, which is not what a baseline should
-      exaggerate.)
-    * the other strategies: unchanged.
-    """
-    strategy_config = strategy_config or StrategyConfig()
-    config = copy.deepcopy(config)
-    if config.strategy == "direct_grasping" and config.gaze.variant == _default(config.gaze, "variant"):
-        config.gaze.variant = "target_only"
-    if (config.strategy == "closed_loop_replanning"
-            and config.planner.replan_period == _default(config.planner, "replan_period")):
-        config.planner.replan_period = strategy_config.replan_period
-    return config
-
-
-def _default(obj, name: str):
-    """The dataclass default of field ``name`` of ``obj``."""
-    return next(f.default for f in dc.fields(obj) if f.name == name)

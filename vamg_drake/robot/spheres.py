@@ -22,6 +22,10 @@ from pathlib import Path
 import numba
 import numpy as np
 import yaml
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+from pydrake.systems.framework import DiagramBuilder
+from scipy.spatial.transform import Rotation
 
 from vamg_drake.robot import kinematics, layout
 from vamg_drake.robot.kinematics import FetchKinematics, _parse_origin
@@ -254,8 +258,6 @@ HEAD_LINKS = ("head_pan_link", "head_tilt_link")
 
 def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
     """(4, 4) rotation about a unit axis."""
-    from scipy.spatial.transform import Rotation
-
     X = np.eye(4)
     X[:3, :3] = Rotation.from_rotvec(np.asarray(axis, float) * angle).as_matrix()
     return X
@@ -352,12 +354,6 @@ def fit_spheres(urdf_path: Path | None = None) -> dict:
 
 def _self_collision_pairs(sphere_links: list[str], urdf_path: Path | None) -> list[list[int]]:
     """Sphere pairs on links whose collision Drake does not filter."""
-    from pydrake.geometry import SceneGraph
-    from pydrake.multibody.parsing import Parser
-    from pydrake.multibody.plant import MultibodyPlant
-    from pydrake.systems.framework import DiagramBuilder
-    from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
-
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.01), builder)
     Parser(plant).AddModels(str(urdf_path or kinematics.fetch_urdf_path()))

@@ -25,7 +25,7 @@ from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment
 from vamg_drake.planning.smoothing import time_parametrize
 from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig, WholeBodyPlanner
-from vamg_drake.policy.behaviour_tree import MotionEvent, Phase, SubgoalCommand
+from vamg_drake.policy.behaviour_tree import MotionEvent, MotionFeedback, Phase, SubgoalCommand
 from vamg_drake.policy.ik import FastIk
 from vamg_drake.robot import layout
 from vamg_drake.robot.kinematics import FetchKinematics
@@ -525,9 +525,6 @@ class PlannerSystem(LeafSystem):
     def __init__(self, config: PlannerSystemConfig | None = None, planner: WholeBodyPlanner | None = None,
                  timings: ModuleTimings | None = None):
         super().__init__()
-        from vamg_drake.systems.subgoal_policy_system import MotionFeedback
-
-        self._MotionFeedback = MotionFeedback
         self._config = config or PlannerSystemConfig()
         self._planner = planner or WholeBodyPlanner.for_fetch(CollisionEnvironment(), self._config.planner)
         if self._config.warm_up:
@@ -656,5 +653,5 @@ class PlannerSystem(LeafSystem):
         plan, event = self._supervisor.tick(plan, goal, q, t, self._env_revision)
         state.get_mutable_abstract_state(self._plan_index).set_value(plan)
         if event != MotionEvent.NONE:
-            state.get_mutable_abstract_state(self._feedback_index).set_value(self._MotionFeedback(goal.goal_id, event))
+            state.get_mutable_abstract_state(self._feedback_index).set_value(MotionFeedback(goal.goal_id, event))
         return EventStatus.Succeeded()

@@ -14,6 +14,7 @@ from pydrake.systems.sensors import ImageDepth32F
 from vamg_drake.perception.raycast_map import PointMap, RayCastMapConfig
 from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics
+from vamg_drake.robot.spheres import SphereModel
 from vamg_drake.systems.timing import ModuleTimings
 
 _log = logging.getLogger(__name__)
@@ -75,8 +76,6 @@ class RayCastMap(LeafSystem):
         self._timings = timings
         self._spheres = None
         if self_filter:
-            from vamg_drake.robot.spheres import SphereModel
-
             self._spheres = SphereModel.load()
         self._depth_port = self.DeclareAbstractInputPort(
             "depth_image", AbstractValue.Make(ImageDepth32F(intrinsics.width, intrinsics.height))

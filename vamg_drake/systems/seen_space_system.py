@@ -13,6 +13,7 @@ from pydrake.systems.sensors import ImageDepth32F
 from vamg_drake.perception.seen_space import SeenGrid, SeenSpaceConfig, with_hidden_cells
 from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics
+from vamg_drake.robot.spheres import SphereModel
 
 _log = logging.getLogger(__name__)
 
@@ -43,7 +44,6 @@ class SeenSpace(LeafSystem):
         self._config = config or SeenSpaceConfig()
         self._config.validate()
         self._center = np.asarray(center_xy, float).reshape(2)
-        from vamg_drake.robot.spheres import SphereModel
 
         self._spheres = SphereModel.load()
         self._depth_port = self.DeclareAbstractInputPort(

@@ -10,6 +10,7 @@ from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 from vamg_drake.policy.behaviour_tree import (
     BehaviourConfig,
     MotionEvent,
+    MotionFeedback,
     Phase,
     PolicyInputs,
     SubgoalBehaviour,
@@ -22,14 +23,6 @@ from vamg_drake.policy.subgoal_pipeline import SubgoalPipeline, SubgoalPipelineC
 from vamg_drake.robot import layout
 
 _log = logging.getLogger(__name__)
-
-
-@dc.dataclass(frozen=True)
-class MotionFeedback:
-    """What the motion layer reports about goal ``goal_id`` (value of ``motion_feedback``)."""
-
-    goal_id: int = -1
-    event: MotionEvent = MotionEvent.NONE
 
 
 @dc.dataclass

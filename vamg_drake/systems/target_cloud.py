@@ -26,6 +26,7 @@ from vamg_drake.perception.raycast_map import inside_any_sphere
 from vamg_drake.perception.voxels import first_in_voxel
 from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics
+from vamg_drake.robot.spheres import SphereModel
 
 
 @dc.dataclass
@@ -97,7 +98,6 @@ class TargetCloud(LeafSystem):
         self.DeclareAbstractInputPort("X_WC", AbstractValue.Make(RigidTransform()))
         self.DeclareVectorInputPort("target", 3)
         self._q_port = self.DeclareVectorInputPort("robot_configuration", layout.NQ)
-        from vamg_drake.robot.spheres import SphereModel
 
         self._spheres = SphereModel.load()
         self._seen = self.DeclareAbstractState(AbstractValue.Make(np.zeros((0, 4))))  # x, y, z, time

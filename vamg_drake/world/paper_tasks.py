@@ -46,10 +46,22 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from pydrake.common.eigen_geometry import Quaternion
+from pydrake.geometry import HalfSpace
+from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
 
 from vamg_drake.world.primitives import signed_distance_to_polygon
 from vamg_drake.world.replicacad_generator import apartment_room
-from vamg_drake.world.replicacad import ReplicaCadLayout, Receptacle, list_replicacad_scenes, load_replicacad_layout
+from vamg_drake.world.replicacad import (
+    ReplicaCadLayout,
+    Receptacle,
+    list_replicacad_scenes,
+    load_replicacad_layout,
+    register_replicacad,
+)
 from vamg_drake.world.scenario import (
     AppearAtDistance,
     AppearAtPhase,
@@ -60,6 +72,8 @@ from vamg_drake.world.scenario import (
     Scenario,
     validate_scenario,
 )
+from vamg_drake.world.scene_geometry import SceneGeometryConfig, _proximity, add_ycb_body
+from vamg_drake.world.world_builder import WorldConfig
 from vamg_drake.world.ycb import load_ycb_asset, ycb_model_for_id
 
 _SCENE_KEY = re.compile(r"^scene_(\d+)$")
@@ -374,15 +388,10 @@ def _object_names(scene: PaperScene) -> list[tuple[str, str]]:
 
 
 def _rotation_of(q: tuple[float, float, float, float]) -> np.ndarray:
-    from pydrake.common.eigen_geometry import Quaternion
-
     return Quaternion(np.asarray(q)).rotation()
 
 
 def _rpy_of(q: tuple[float, float, float, float]) -> list[float]:
-    from pydrake.common.eigen_geometry import Quaternion
-    from pydrake.math import RollPitchYaw
-
     return [float(a) for a in RollPitchYaw(Quaternion(np.asarray(q))).vector()]
 
 
@@ -401,16 +410,6 @@ def settle_objects(layout: ReplicaCadLayout, objects: list[PlacedObject], settle
         (settled objects, lift [m] per object). The settled objects keep
         name, model and support fields of the input.
     """
-    from pydrake.geometry import HalfSpace
-    from pydrake.math import RigidTransform, RollPitchYaw
-    from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
-    from pydrake.systems.analysis import Simulator
-    from pydrake.systems.framework import DiagramBuilder
-
-    from vamg_drake.world.replicacad import register_replicacad
-    from vamg_drake.world.scene_geometry import SceneGeometryConfig, _proximity, add_ycb_body
-    from vamg_drake.world.world_builder import WorldConfig
-
     # The episode's own contact model and step (compliant-hydroelastic objects on rigid
     # furniture, 10 ms SAP), so the settled poses are at rest in the episode too.
     geometry = SceneGeometryConfig()

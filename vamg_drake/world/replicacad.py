@@ -63,6 +63,17 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+from pydrake.geometry import (
+    Convex,
+    GeometryInstance,
+    IllustrationProperties,
+    Mesh,
+    PerceptionProperties,
+    ProximityProperties,
+    RenderLabel,
+)
+from pydrake.math import RigidTransform
+from pydrake.multibody.tree import SpatialInertia
 
 from vamg_drake.world.primitives import WorldBox, convex_hull_2d, rotation_z, signed_distance_to_polygon
 from vamg_drake.world.replicacad_navmesh import NavMesh, NavMeshError, read_navmesh
@@ -765,10 +776,6 @@ def register_replicacad(plant, instance, layout: ReplicaCadLayout, proximity, vi
     Returns:
         body name -> RigidBody.
     """
-    from pydrake.geometry import Convex, GeometryInstance, IllustrationProperties, Mesh, PerceptionProperties, ProximityProperties, RenderLabel
-    from pydrake.math import RigidTransform
-    from pydrake.multibody.tree import SpatialInertia
-
     inertia = SpatialInertia.SolidSphereWithMass(1.0, 0.1)
     bodies = {}
     gray = np.array([0.7, 0.7, 0.7, 1.0])
@@ -794,17 +801,3 @@ def register_replicacad(plant, instance, layout: ReplicaCadLayout, proximity, vi
             if not body_spec.floor_covering:
                 plant.RegisterCollisionGeometry(body, RigidTransform(), shape, f"{body_spec.name}/{k}", ProximityProperties(proximity))
     return bodies
-
-
-def replicacad_scenario(scene: str, seed: int, dataset_dir: str | Path | None = None, config=None):
-    """Generates a validated ``Scenario`` in ReplicaCAD scene ``scene`` (see ``replicacad_generator``).
-
-    Args:
-        scene: scene instance name, e.g. "apt_0".
-        seed: generator seed (same seed, same scenario).
-        dataset_dir: the dataset, or None to look it up with ``find_replicacad_dir``.
-        config: a ``ReplicaCadGeneratorConfig``.
-    """
-    from vamg_drake.world.replicacad_generator import generate_replicacad_scenario  # (imports this module)
-
-    return generate_replicacad_scenario(scene, seed, dataset_dir, config)

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from pydrake.geometry import ProximityProperties
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.framework import DiagramBuilder
@@ -80,8 +81,6 @@ class SceneContactCheck:
     def __init__(self, layout: ReplicaCadLayout, names: list[str], models: list[str] | None = None):
         builder = DiagramBuilder()
         plant, self._scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.0), builder)
-        from pydrake.geometry import ProximityProperties
-
         register_replicacad(plant, plant.AddModelInstance("scene"), layout, ProximityProperties(), visuals=False)
         geometry = SceneGeometryConfig(hydroelastic_modulus=None)
         self._bodies = {}
@@ -167,9 +166,9 @@ def generate_replicacad_scenario(
         scenario = _try_generate(scene, seed, layout, room, grid, reachable, rng, config)
         if scenario is not None:
             scenario.replicacad.dataset_dir = explicit
-            validate_scenario(scenario, f"replicacad_scenario({scene!r}, seed={seed})")
+            validate_scenario(scenario, f"generate_replicacad_scenario({scene!r}, seed={seed})")
             return scenario
-    raise GenerationError(f"replicacad_scenario({scene!r}, seed={seed}): no valid scenario in {config.max_attempts} attempts")
+    raise GenerationError(f"generate_replicacad_scenario({scene!r}, seed={seed}): no valid scenario in {config.max_attempts} attempts")
 
 
 def _try_generate(scene, seed, layout, room, grid, reachable, rng, config: ReplicaCadGeneratorConfig) -> Scenario | None:

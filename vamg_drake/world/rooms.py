@@ -25,6 +25,7 @@ Decisions:
 """
 
 
+import copy
 import math
 from dataclasses import dataclass, field
 
@@ -591,8 +592,6 @@ def retarget_scenario(scenario: Scenario, target: str, seed: int, config: RoomGe
     The start and events are drawn as ``generate_scenario`` draws them, from
     ``np.random.default_rng(seed)``. Returns None when no start or event fits.
     """
-    import copy
-
     config = config or RoomGeneratorConfig()
     rng = np.random.default_rng(seed)
     grid, reachable = floor_grid_of(scenario, config)

@@ -37,6 +37,7 @@ from vamg_drake.world.primitives import (
     rotation_z,
     signed_distance_to_polygon,
 )
+from vamg_drake.world.replicacad import ReplicaCadError, load_replicacad_layout
 from vamg_drake.world.ycb import YCB_MODELS
 
 FURNITURE_KINDS = ("table", "counter", "shelf", "chair", "sofa", "cabinet")
@@ -488,8 +489,6 @@ class Scenario:
         """
         if self.replicacad is None:
             return None
-        from vamg_drake.world.replicacad import load_replicacad_layout  # (imports this module)
-
         return load_replicacad_layout(
             self.replicacad.scene, self.replicacad.dataset_dir or None, self.replicacad.require_stage
         )
@@ -768,8 +767,6 @@ def _check_replicacad(scenario: Scenario, problems: list[str]) -> bool:
     if not scenario.replicacad.scene:
         problems.append("replicacad.scene: missing")
         return False
-    from vamg_drake.world.replicacad import ReplicaCadError
-
     try:
         scenario.replicacad_layout()
     except ReplicaCadError as e:

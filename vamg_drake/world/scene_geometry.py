@@ -49,6 +49,7 @@ from pydrake.multibody.tree import (
 )
 
 from vamg_drake.world.primitives import WorldBox, WorldPrimitive
+from vamg_drake.world.replicacad import register_replicacad
 from vamg_drake.world.scenario import (
     Box,
     DynamicEvent,
@@ -301,8 +302,6 @@ def add_scene(
             register_primitive(plant, body, primitive, X_WF, tuple(part.rgba), config)
     layout = scenario.replicacad_layout()
     if layout is not None:
-        from vamg_drake.world.replicacad import register_replicacad
-
         for wall in layout.walls:
             register_primitive(plant, walls_body, wall, I_W, _WALL_RGBA, config)
         register_replicacad(plant, scene, layout, _proximity(config, False, 0.05))
