@@ -155,6 +155,48 @@ def test_warm_up_does_not_change_the_plan(base_checker):
     np.testing.assert_array_equal(cold.trajectory.q, warm.trajectory.q)
 
 
+_COMPILES_AFTER_WARM_UP = """
+import sys
+import numpy as np
+from numba.core.registry import CPUDispatcher
+from vamg_drake.planning import collision, hybrid_astar, reeds_shepp, whole_body_planner, whole_body_rrt
+from vamg_drake.planning.collision import CollisionEnvironment
+from vamg_drake.planning.whole_body_planner import WholeBodyPlanner
+from vamg_drake.robot import layout
+
+def signatures():
+    return {(m.__name__, k): len(v.signatures) for m in (collision, hybrid_astar, reeds_shepp, whole_body_planner,
+            whole_body_rrt) for k, v in vars(m).items() if isinstance(v, CPUDispatcher)}
+
+planner = WholeBodyPlanner.for_fetch(CollisionEnvironment())
+planner.warm_up()
+before = signatures()
+rng = np.random.default_rng(3)
+# A map of points unlike the warm-up's: a cabinet beside the path, a shelf at the goal.
+cabinet = np.column_stack([rng.uniform(0.8, 1.4, 3000), rng.uniform(0.5, 1.0, 3000), rng.uniform(0.0, 0.9, 3000)])
+shelf = np.column_stack([rng.uniform(2.0, 2.5, 3000), rng.uniform(-1.8, -1.2, 3000), np.full(3000, 0.9)])
+planner.set_environment(CollisionEnvironment.from_points(np.concatenate([cabinet, shelf]), resolution=0.05))
+q_goal = layout.stow_configuration(2.2, -0.6, -1.2)
+q_goal[3:] = [0.2, 0.6, -0.4, 0.3, 1.1, 0.2, 0.9, 0.1]
+result = planner.plan(layout.stow_configuration(0.0, 0.0, 0.3), q_goal)
+new = sorted(f"{m}.{k}" for (m, k), n in signatures().items() if n > before.get((m, k), 0))
+print("success", result.success, result.message)
+print("new", new)
+sys.exit(1 if new or not result.success else 0)
+"""
+
+
+def test_warm_up_compiles_every_kernel_a_plan_in_a_point_map_needs():
+    """After `warm_up`, a plan in a map of points compiles nothing: an
+    episode's first plan must not spend its wall-clock safety net compiling
+    (run in a fresh process, so earlier tests' compilations do not count)."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", _COMPILES_AFTER_WARM_UP], capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stdout + done.stderr[-3000:]
+
+
 def test_fixed_base_searches_between_the_along_path_search_rounds(base_checker):
     """Bench room 26: the along-path search (c) does not connect in its first
     round, the fixed-base searches (d) do; the plan is free in Drake's exact
