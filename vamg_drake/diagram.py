@@ -44,7 +44,7 @@ from vamg_drake.perception.gaze import GazeConfig
 from vamg_drake.perception.raycast_map import RayCastMapConfig
 from vamg_drake.perception.seen_space import LookGateConfig, SeenSpaceConfig
 from vamg_drake.policy.behaviour_tree import BehaviourConfig
-from vamg_drake.policy.strategies import StrategyConfig
+from vamg_drake.policy.strategies import BEHAVIOURS, StrategyConfig
 from vamg_drake.policy.subgoal_pipeline import SubgoalPipelineConfig
 from vamg_drake.systems.depth_sampler import DepthSampler
 from vamg_drake.systems.dynamic_obstacles import DynamicObstacleDriver
@@ -68,8 +68,6 @@ from vamg_drake.world.world_builder import World, WorldConfig, build_world, init
 POLICIES = ("full", "scripted")
 #: What the map knows at the start (DiagramConfig.prior_map).
 PRIOR_MAPS = ("none", "static")
-#: How the full system organises its subgoals (the paper's methods share the rest).
-STRATEGIES = ("subgoal_tree", "direct_grasping", "closed_loop_replanning", "nav_and_manip", "capmap_placement")
 
 
 @dc.dataclass
@@ -81,7 +79,9 @@ class DiagramConfig:
         monitor: success and collision criteria.
         policy: "full" (the paper's system) or "scripted" (drives waypoints).
         method: the method's name, recorded in results.
-        strategy: one of STRATEGIES (see `vamg_drake.bench` for the methods).
+        strategy: how the full system organises its subgoals, a key of
+            `vamg_drake.policy.strategies.BEHAVIOURS` (see `vamg_drake.bench`
+            for the methods).
         seed: seed of the samplers and the planner.
         prior_map: "none" (the paper's setting: the map starts empty) or
             "static" (it starts with a point cloud of the room's static
@@ -137,9 +137,9 @@ class DiagramConfig:
             raise ValueError(f"DiagramConfig.policy: unknown policy '{self.policy}' (known: {', '.join(POLICIES)})")
         if self.prior_map not in PRIOR_MAPS:
             raise ValueError(f"DiagramConfig.prior_map: unknown prior map '{self.prior_map}' (known: {', '.join(PRIOR_MAPS)})")
-        if self.strategy not in STRATEGIES:
+        if self.strategy not in BEHAVIOURS:
             raise ValueError(f"DiagramConfig.strategy: unknown strategy '{self.strategy}' "
-                             f"(known: {', '.join(STRATEGIES)})")
+                             f"(known: {', '.join(BEHAVIOURS)})")
         if self.policy == "full" and not self.world.enable_camera:
             raise ValueError("DiagramConfig.world.enable_camera: the full system needs the head camera")
         self.gaze.validate()

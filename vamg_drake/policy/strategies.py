@@ -411,7 +411,8 @@ class ClosedLoopReplanningBehaviour(StrategyBehaviour):
         return self._back_to_pregrasp(inputs, f"the map put the {stage.value} goal in collision: resampling the pre-grasp")
 
 
-#: The behaviour class of each strategy (``subgoal_tree`` is the full system).
+#: The behaviour class of each strategy (``subgoal_tree`` is the full system);
+#: its keys are the valid values of ``DiagramConfig.strategy``.
 BEHAVIOURS: dict[str, type[SubgoalBehaviour]] = {
     "subgoal_tree": SubgoalBehaviour,
     "direct_grasping": DirectGraspingBehaviour,
