@@ -498,9 +498,9 @@ def test_tracker_drives_the_simulated_robot_along_a_curved_path():
     robot_state = builder.AddSystem(
         RobotStateSelector(plant.num_positions(), plant.num_velocities(), world.position_index, world.velocity_index)
     )
-    builder.Connect(plant.get_state_output_port(), robot_state.get_input_port(0))
+    builder.Connect(plant.get_state_output_port(), robot_state.GetInputPort("plant_state"))
     split = builder.AddSystem(Demultiplexer([layout.NQ, 4]))
-    builder.Connect(robot_state.GetOutputPort("configuration"), split.get_input_port(0))
+    builder.Connect(robot_state.GetOutputPort("configuration"), split.get_input_port())
     command = builder.AddSystem(RobotCommandIntegrator(V0, world.actuator_joint_order))
     builder.Connect(command.GetOutputPort("desired_state"), plant.get_desired_state_input_port(world.robot))
     builder.Connect(robot_state.GetOutputPort("configuration"), command.GetInputPort("measured_configuration"))

@@ -264,7 +264,7 @@ def build_diagram(scenario: Scenario, config: DiagramConfig | None = None, meshc
         "robot_state",
         RobotStateSelector(plant.num_positions(), plant.num_velocities(), world.position_index, world.velocity_index),
     )
-    builder.Connect(plant.get_state_output_port(), robot_state.get_input_port(0))
+    builder.Connect(plant.get_state_output_port(), robot_state.GetInputPort("plant_state"))
 
     command = builder.AddNamedSystem(
         "command",

@@ -134,6 +134,14 @@ class PointMapSnapshot:
     voxel_size: float
     revision: int
 
+    @staticmethod
+    def empty(voxel_size: float = RayCastMapConfig.voxel_size) -> "PointMapSnapshot":
+        """A map without points (revision 0), the model value of map ports."""
+        points, keys = np.empty((0, 3)), np.empty(0, dtype=np.int64)
+        points.flags.writeable = False
+        keys.flags.writeable = False
+        return PointMapSnapshot(points, keys, voxel_size, 0)
+
     @property
     def num_points(self) -> int:
         return int(self.points.shape[0])

@@ -196,6 +196,13 @@ class SubgoalCommand:
     failure: FailureCategory = FailureCategory.NONE
     reason: str = ""
 
+    @staticmethod
+    def initial() -> "SubgoalCommand":
+        """The command before the policy's first update (goal 0, IDLE): hold
+        still with the gripper open; also the model value of goal ports."""
+        return SubgoalCommand(0, np.full(layout.NQ, np.nan), "hold", Phase.IDLE, layout.GRIPPER_MAX_OPENING,
+                              np.full(2, np.nan))
+
 
 @dc.dataclass(frozen=True)
 class MotionFeedback:

@@ -43,17 +43,17 @@ class DepthSampler(LeafSystem):
     def __init__(self, period: float, timings: ModuleTimings | None = None):
         super().__init__()
         self._timings = timings
-        self.DeclareAbstractInputPort("depth_image", AbstractValue.Make(ImageDepth32F()))
-        self.DeclareAbstractInputPort("X_WC", AbstractValue.Make(RigidTransform()))
+        self._depth_port = self.DeclareAbstractInputPort("depth_image", AbstractValue.Make(ImageDepth32F()))
+        self._pose_port = self.DeclareAbstractInputPort("X_WC", AbstractValue.Make(RigidTransform()))
         self._frame = self.DeclareAbstractState(AbstractValue.Make(DepthFrame()))
         self.DeclarePeriodicUnrestrictedUpdateEvent(period, 0.0, self._sample)
         self.DeclareStateOutputPort("depth_frame", self._frame)
 
     def _sample(self, context, state) -> None:
         t0 = time.perf_counter()
-        image = self.get_input_port(0).Eval(context)
+        image = self._depth_port.Eval(context)
         depth = np.array(image.data, dtype=np.float32, copy=True)[:, :, 0]
         if self._timings is not None:
             self._timings.add("depth_render", 1000.0 * (time.perf_counter() - t0))
-        X_WC = self.get_input_port(1).Eval(context).GetAsMatrix4()
+        X_WC = self._pose_port.Eval(context).GetAsMatrix4()
         state.get_mutable_abstract_state(self._frame).set_value(DepthFrame(context.get_time(), depth, X_WC))

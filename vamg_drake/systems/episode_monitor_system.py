@@ -7,6 +7,8 @@ from pydrake.common.value import AbstractValue
 from pydrake.geometry import QueryObject
 from pydrake.systems.framework import EventStatus, LeafSystem
 
+from vamg_drake.policy.behaviour_tree import SubgoalCommand
+from vamg_drake.systems.planner_system import PlannedTrajectory
 from vamg_drake.world.episode_monitor import (
     GRASP_INITIATED_PHASES,
     Contact,
@@ -56,11 +58,11 @@ class EpisodeMonitor(LeafSystem):
             self._names[gid] = body.name()
             self._owner_is_robot[gid] = body.model_instance() == world.robot
             self._owner_is_target[gid] = body.index() == target.index()
-        self.DeclareAbstractInputPort("query_object", AbstractValue.Make(QueryObject()))
-        self.DeclareVectorInputPort("plant_state", plant.num_multibody_states())
-        self.DeclareVectorInputPort("gripper_command", 1)
-        self._policy_port = self.DeclareAbstractInputPort("policy_goal", AbstractValue.Make(None))
-        self._planner_port = self.DeclareAbstractInputPort("planner_status", AbstractValue.Make(None))
+        self._query_port = self.DeclareAbstractInputPort("query_object", AbstractValue.Make(QueryObject()))
+        self._state_port = self.DeclareVectorInputPort("plant_state", plant.num_multibody_states())
+        self._gripper_port = self.DeclareVectorInputPort("gripper_command", 1)
+        self._policy_port = self.DeclareAbstractInputPort("policy_goal", AbstractValue.Make(SubgoalCommand.initial()))
+        self._planner_port = self.DeclareAbstractInputPort("planner_status", AbstractValue.Make(PlannedTrajectory()))
         self._outcome = self.DeclareAbstractState(AbstractValue.Make(EpisodeOutcome()))
         self._grasp_started = self.DeclareAbstractState(AbstractValue.Make(False))
         self.DeclarePeriodicUnrestrictedUpdateEvent(self.config.period, 0.0, self._tick)
@@ -76,9 +78,9 @@ class EpisodeMonitor(LeafSystem):
                             getattr(plan, "error", "") if plan is not None else "")
 
     def _tick(self, context, state) -> EventStatus:
-        query: QueryObject = self.get_input_port(0).Eval(context)
-        x = self.get_input_port(1).Eval(context)
-        opening = float(self.get_input_port(2).Eval(context)[0])
+        query: QueryObject = self._query_port.Eval(context)
+        x = self._state_port.Eval(context)
+        opening = float(self._gripper_port.Eval(context)[0])
         report = self._report(context)
         # Grasp initiation: the linear approach from the pre-grasp pose began (or the gripper closes).
         grasp_started = (bool(context.get_abstract_state(self._grasp_started).get_value()) or opening < 0.09

@@ -55,6 +55,7 @@ class GazeOptimizer(LeafSystem):
         self._sweep_tilt = sweep_tilt
         self._core = GazeOptimizerCore(intrinsics, config)
         self._cameras = FetchGazeCameras(self._core.candidates)
+        # None is a value of this port (no trajectory while planning), hence its model.
         self._trajectory_port = self.DeclareAbstractInputPort("trajectory", AbstractValue.Make(None))
         self._time_port = self.DeclareVectorInputPort("trajectory_time", 1)
         self._target_port = self.DeclareVectorInputPort("target", 3)

@@ -21,6 +21,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem
 
+from vamg_drake.perception.raycast_map import PointMapSnapshot
 from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment
 from vamg_drake.planning.smoothing import time_parametrize
 from vamg_drake.planning.trajectory import TimedTrajectory
@@ -530,14 +531,14 @@ class PlannerSystem(LeafSystem):
         if self._config.warm_up:
             self._planner.warm_up()
         self._supervisor = MotionSupervisor(self._planner, self._config, timings)
-        self._goal_port = self.DeclareAbstractInputPort("goal", AbstractValue.Make(None))
-        self._map_port = self.DeclareAbstractInputPort("point_map", AbstractValue.Make(None))
+        self._goal_port = self.DeclareAbstractInputPort("goal", AbstractValue.Make(SubgoalCommand.initial()))
+        self._map_port = self.DeclareAbstractInputPort("point_map", AbstractValue.Make(PointMapSnapshot.empty()))
         self._q_port = self.DeclareVectorInputPort("robot_configuration", layout.NQ)
         self._target_port = self.DeclareVectorInputPort("target", 3)
         self._plan_index = self.DeclareAbstractState(AbstractValue.Make(PlannedTrajectory()))
         self._feedback_index = self.DeclareAbstractState(AbstractValue.Make(MotionFeedback()))
         self.DeclareStateOutputPort("trajectory", self._plan_index)
-        self.DeclareAbstractOutputPort(
+        self.DeclareAbstractOutputPort(  # None (hold still) is one of its values, hence the model
             "timed_trajectory", lambda: AbstractValue.Make(None),
             lambda context, value: value.set_value(context.get_abstract_state(self._plan_index).get_value().trajectory),
             {self.abstract_state_ticket(self._plan_index)},

@@ -45,10 +45,10 @@ class RobotCommandIntegrator(LeafSystem):
         super().__init__()
         self._order = np.asarray(actuator_joint_order, dtype=int)
         self._period = period
-        self.DeclareVectorInputPort("base_velocity", BASE_VELOCITY_SIZE)
-        self.DeclareVectorInputPort("joint_velocity", JOINT_VELOCITY_SIZE)
-        self.DeclareVectorInputPort("head_command", HEAD_COMMAND_SIZE)
-        self.DeclareVectorInputPort("gripper_command", GRIPPER_COMMAND_SIZE)
+        self._base_port = self.DeclareVectorInputPort("base_velocity", BASE_VELOCITY_SIZE)
+        self._joint_port = self.DeclareVectorInputPort("joint_velocity", JOINT_VELOCITY_SIZE)
+        self._head_port = self.DeclareVectorInputPort("head_command", HEAD_COMMAND_SIZE)
+        self._gripper_port = self.DeclareVectorInputPort("gripper_command", GRIPPER_COMMAND_SIZE)
         self._measured_port = self.DeclareVectorInputPort("measured_configuration", NX)
         V0 = np.asarray(initial_configuration, dtype=float)
         self._state = self.DeclareDiscreteState(np.r_[V0, np.zeros(NX)])
@@ -60,10 +60,10 @@ class RobotCommandIntegrator(LeafSystem):
         x = context.get_discrete_state(self._state).get_value()
         V_next, Vdot = integrate_command(
             x[:NX],
-            self.get_input_port(0).Eval(context),
-            self.get_input_port(1).Eval(context),
-            self.get_input_port(2).Eval(context),
-            float(self.get_input_port(3).Eval(context)[0]),
+            self._base_port.Eval(context),
+            self._joint_port.Eval(context),
+            self._head_port.Eval(context),
+            float(self._gripper_port.Eval(context)[0]),
             self._period,
         )
         if self._measured_port.HasValue(context):

@@ -22,16 +22,16 @@ class RobotStateSelector(LeafSystem):
         self._nq = num_positions
         self._qi = np.asarray(position_index, dtype=int)
         self._vi = np.asarray(velocity_index, dtype=int)
-        self.DeclareVectorInputPort("plant_state", num_positions + num_velocities)
+        self._state_port = self.DeclareVectorInputPort("plant_state", num_positions + num_velocities)
         self.DeclareVectorOutputPort("configuration", NX, self._calc_q)
         self.DeclareVectorOutputPort("velocity", NX, self._calc_v)
         self.DeclareVectorOutputPort("whole_body_configuration", layout.NQ, self._calc_q11)
 
     def _calc_q(self, context, output: BasicVector) -> None:
-        output.SetFromVector(self.get_input_port(0).Eval(context)[self._qi])
+        output.SetFromVector(self._state_port.Eval(context)[self._qi])
 
     def _calc_q11(self, context, output: BasicVector) -> None:
-        output.SetFromVector(self.get_input_port(0).Eval(context)[self._qi[: layout.NQ]])
+        output.SetFromVector(self._state_port.Eval(context)[self._qi[: layout.NQ]])
 
     def _calc_v(self, context, output: BasicVector) -> None:
-        output.SetFromVector(self.get_input_port(0).Eval(context)[self._nq + self._vi])
+        output.SetFromVector(self._state_port.Eval(context)[self._nq + self._vi])

@@ -52,7 +52,7 @@ class ScriptedDriver(LeafSystem):
         super().__init__()
         self.config = config or ScriptedDriverConfig()
         self._waypoints = np.atleast_2d(np.asarray(waypoints, dtype=float))[:, :2]
-        self.DeclareVectorInputPort("robot_configuration", NX)
+        self._q_port = self.DeclareVectorInputPort("robot_configuration", NX)
         self._index = self.DeclareDiscreteState(1)
         self.DeclarePeriodicDiscreteUpdateEvent(0.05, 0.0, self._advance)
         self.DeclareVectorOutputPort("base_velocity", 2, self._calc_base)
@@ -66,7 +66,7 @@ class ScriptedDriver(LeafSystem):
     def _advance(self, context, discrete_state) -> None:
         i = self._current(context)
         if i < len(self._waypoints):
-            V = self.get_input_port(0).Eval(context)
+            V = self._q_port.Eval(context)
             if np.hypot(*(self._waypoints[i] - V[:2])) < self.config.waypoint_tolerance:
                 discrete_state.get_mutable_vector(self._index).SetFromVector([i + 1])
 
@@ -75,7 +75,7 @@ class ScriptedDriver(LeafSystem):
         if i >= len(self._waypoints):
             output.SetZero()
             return
-        V = self.get_input_port(0).Eval(context)
+        V = self._q_port.Eval(context)
         output.SetFromVector(unicycle_command(V[0], V[1], V[2], self._waypoints[i], self.config))
 
     def _calc_head(self, context, output: BasicVector) -> None:

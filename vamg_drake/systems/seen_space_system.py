@@ -10,6 +10,7 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import EventStatus, LeafSystem
 from pydrake.systems.sensors import ImageDepth32F
 
+from vamg_drake.perception.raycast_map import PointMapSnapshot
 from vamg_drake.perception.seen_space import SeenGrid, SeenSpaceConfig, with_hidden_cells
 from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics
@@ -96,9 +97,9 @@ class HiddenCellMap(LeafSystem):
 
     def __init__(self):
         super().__init__()
-        self._map_port = self.DeclareAbstractInputPort("point_map", AbstractValue.Make(None))
-        self._seen_port = self.DeclareAbstractInputPort("seen_space", AbstractValue.Make(None))
-        self.DeclareAbstractOutputPort("point_map", lambda: AbstractValue.Make(None), self._calc)
+        self._map_port = self.DeclareAbstractInputPort("point_map", AbstractValue.Make(PointMapSnapshot.empty()))
+        self._seen_port = self.DeclareAbstractInputPort("seen_space", AbstractValue.Make(SeenGrid.around(np.zeros(2))))
+        self.DeclareAbstractOutputPort("point_map", lambda: AbstractValue.Make(PointMapSnapshot.empty()), self._calc)
 
     def _calc(self, context, output) -> None:
         snapshot = self._map_port.Eval(context) if self._map_port.HasValue(context) else None

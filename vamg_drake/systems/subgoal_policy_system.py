@@ -7,11 +7,11 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
+from vamg_drake.perception.raycast_map import PointMapSnapshot
 from vamg_drake.policy.behaviour_tree import (
     BehaviourConfig,
     MotionEvent,
     MotionFeedback,
-    Phase,
     PolicyInputs,
     SubgoalBehaviour,
     SubgoalCommand,
@@ -37,10 +37,6 @@ class SubgoalPolicyConfig:
     #: Without a motion_feedback input, a goal counts as reached when every joint
     #: of q is within this distance of it [m or rad].
     reach_tolerance: float = 0.03
-
-
-def _initial_command() -> SubgoalCommand:
-    return SubgoalCommand(0, np.full(layout.NQ, np.nan), "hold", Phase.IDLE, layout.GRIPPER_MAX_OPENING, np.full(2, np.nan))
 
 
 class SubgoalPolicy(LeafSystem):
@@ -74,12 +70,12 @@ class SubgoalPolicy(LeafSystem):
         super().__init__()
         self._behaviour = behaviour
         self._config = config or SubgoalPolicyConfig()
-        self._map_port = self.DeclareAbstractInputPort("point_map", AbstractValue.Make(None))
+        self._map_port = self.DeclareAbstractInputPort("point_map", AbstractValue.Make(PointMapSnapshot.empty()))
         self._q_port = self.DeclareVectorInputPort("robot_configuration", layout.NQ)
         self._target_port = self.DeclareVectorInputPort("target", 3)
         self._feedback_port = self.DeclareAbstractInputPort("motion_feedback", AbstractValue.Make(MotionFeedback()))
         self._cloud_port = self.DeclareAbstractInputPort("target_cloud", AbstractValue.Make(np.zeros((0, 3))))
-        self._command_index = self.DeclareAbstractState(AbstractValue.Make(_initial_command()))
+        self._command_index = self.DeclareAbstractState(AbstractValue.Make(SubgoalCommand.initial()))
         self._handled_index = self.DeclareAbstractState(AbstractValue.Make(MotionFeedback()))
         self._gripper_index = self.DeclareDiscreteState(BasicVector([layout.GRIPPER_MAX_OPENING]))
         self.DeclareStateOutputPort("goal", self._command_index)

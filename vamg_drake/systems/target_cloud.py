@@ -93,10 +93,10 @@ class TargetCloud(LeafSystem):
         super().__init__()
         self._config = config or TargetCloudConfig()
         self._projector = DepthBackProjector(intrinsics)
-        self.DeclareAbstractInputPort("depth_image",
-                                      AbstractValue.Make(ImageDepth32F(intrinsics.width, intrinsics.height)))
-        self.DeclareAbstractInputPort("X_WC", AbstractValue.Make(RigidTransform()))
-        self.DeclareVectorInputPort("target", 3)
+        self._depth_port = self.DeclareAbstractInputPort(
+            "depth_image", AbstractValue.Make(ImageDepth32F(intrinsics.width, intrinsics.height)))
+        self._pose_port = self.DeclareAbstractInputPort("X_WC", AbstractValue.Make(RigidTransform()))
+        self._target_port = self.DeclareVectorInputPort("target", 3)
         self._q_port = self.DeclareVectorInputPort("robot_configuration", layout.NQ)
 
         self._spheres = SphereModel.load()
@@ -107,12 +107,12 @@ class TargetCloud(LeafSystem):
 
     def _update(self, context, state) -> EventStatus:
         cfg = self._config
-        p_WT = np.asarray(self.get_input_port(2).Eval(context), dtype=float)
+        p_WT = np.asarray(self._target_port.Eval(context), dtype=float)
         if not np.all(np.isfinite(p_WT)):
             return EventStatus.Succeeded()
         try:
-            X_WC = validate_pose(self.get_input_port(1).Eval(context).GetAsMatrix4())
-            depth = self.get_input_port(0).Eval(context).data[:, :, 0]
+            X_WC = validate_pose(self._pose_port.Eval(context).GetAsMatrix4())
+            depth = self._depth_port.Eval(context).data[:, :, 0]
             p_WS = self._projector.points_W(depth, X_WC)
         except ValueError:
             return EventStatus.Succeeded()

@@ -85,9 +85,10 @@ class WholeBodyTracker(LeafSystem):
         self._look = look or LookGateConfig()
         self._look.validate()
         self._core = WholeBodyTrackerCore(self._config)
+        # None is a value of this port (no trajectory: hold still), hence its model.
         self._trajectory_port = self.DeclareAbstractInputPort("trajectory", AbstractValue.Make(None))
         self._q_port = self.DeclareVectorInputPort("robot_configuration", layout.NQ)
-        self._seen_port = self.DeclareAbstractInputPort("seen_space", AbstractValue.Make(None))
+        self._seen_port = self.DeclareAbstractInputPort("seen_space", AbstractValue.Make(SeenGrid.around(np.zeros(2))))
         self._u_index = self.DeclareDiscreteState(BASE_VELOCITY_SIZE + JOINT_VELOCITY_SIZE)
         self._tracking_index = self.DeclareAbstractState(AbstractValue.Make(TrackerCommand()))
         self._gate_index = self.DeclareAbstractState(AbstractValue.Make(LookGate()))
