@@ -420,10 +420,6 @@ class WholeBodyTrackerCore:
         self._done = False
 
     @property
-    def has_trajectory(self) -> bool:
-        return self._qs is not None
-
-    @property
     def status(self) -> str:
         return self._status
 

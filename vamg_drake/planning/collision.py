@@ -274,80 +274,6 @@ class CollisionEnvironment:
         occ = (d <= 0.5 * SQRT3 * resolution).reshape(shape)
         return CollisionEnvironment(field=DistanceField.from_occupancy(occ, origin, resolution))
 
-    def footprint_field_2d(self, z_min: float, z_max: float, resolution: float = 0.05,
-                           cover_xy: tuple[np.ndarray, np.ndarray] | None = None):
-        """A 2D clearance map of everything between z_min and z_max.
-
-        With a distance field, its occupied voxels in the z band are projected
-        onto the field's own xy grid; primitives are rasterized onto that grid
-        (or onto a `resolution` grid when there is no field): a cell is
-        occupied when some point of the primitive in the band projects within
-        (sqrt(2)/2) h of the cell centre (z sampled at spacing h, the test
-        radius grown accordingly, so the set is a superset).
-
-        Returns:
-            (dist (nx, ny) [m] from each cell centre to the nearest occupied
-            cell centre, origin (2,) centre of cell (0, 0), resolution, margin)
-            where margin = sqrt(2) h bounds the discretization like the 3D field:
-            a disc of radius r at a point p is free if dist(cell(p)) - margin > r.
-            The grid covers the obstacles and the xy box `cover_xy` (lo, hi).
-        """
-        f = self.field
-        has_prims = self.box_p.shape[0] + self.cyl_p.shape[0] > 0
-        if f is not None and f.num_occupied:
-            h = f.resolution
-            origin = f.origin[:2].copy()
-            z = f.origin[2] + h * np.arange(f.occupancy.shape[2])
-            band = (z >= z_min - 0.5 * h) & (z <= z_max + 0.5 * h)
-            occ = f.occupancy[:, :, band].any(axis=2)
-        elif has_prims:
-            h = resolution
-            lo, hi = self._primitive_xy_bounds()
-            lo -= 1.0
-            hi += 1.0
-            origin = np.floor(lo / h) * h + 0.5 * h
-            shape = np.maximum(np.ceil((hi - origin) / h).astype(int) + 1, 1)
-            occ = np.zeros(shape, bool)
-        else:
-            h = resolution
-            if cover_xy is None:
-                return np.full((1, 1), 1e6, np.float32), np.zeros(2), h, math.sqrt(2) * h
-            origin = np.floor(np.asarray(cover_xy[0], float) / h) * h + 0.5 * h
-            shape = np.maximum(np.ceil((np.asarray(cover_xy[1], float) - origin) / h).astype(int) + 1, 1)
-            return np.full(shape, 1e6, np.float32), origin, h, math.sqrt(2) * h
-        if cover_xy is not None:
-            lo_c = np.floor((np.asarray(cover_xy[0], float) - origin) / h).astype(int)
-            hi_c = np.ceil((np.asarray(cover_xy[1], float) - origin) / h).astype(int)
-            pad_lo = np.maximum(-lo_c, 0)
-            pad_hi = np.maximum(hi_c - (np.array(occ.shape) - 1), 0)
-            if np.any(pad_lo) or np.any(pad_hi):
-                occ = np.pad(occ, [(pad_lo[0], pad_hi[0]), (pad_lo[1], pad_hi[1])])
-                origin = origin - pad_lo * h
-        if has_prims:
-            zs = np.arange(max(z_min, -1.0), z_max + h, h)
-            test_r = math.hypot(0.5 * math.sqrt(2) * h, 0.5 * h)
-            _rasterize_primitives_2d(occ, origin, h, zs, test_r, self.box_p, self.box_R, self.box_half,
-                                     self.cyl_p, self.cyl_R, self.cyl_radius, self.cyl_half_length,
-                                     float(z_min), float(z_max), 0.5 * math.sqrt(2) * h)
-        if not occ.any():
-            return np.full((1, 1), 1e6, np.float32), np.zeros(2), h, math.sqrt(2) * h
-        dist = edt_2d(occ, float(h))
-        # A voxel may stand for an obstacle point up to (sqrt(3)/2) h from its
-        # centre (see `voxelized`), which projects up to that far in xy.
-        obstacle_term = 0.5 * SQRT3 * h if f is not None and f.num_occupied else 0.5 * math.sqrt(2) * h
-        return dist, origin, h, obstacle_term + 0.5 * math.sqrt(2) * h
-
-    def _primitive_xy_bounds(self):
-        pts = []
-        for p, R, hh in zip(self.box_p, self.box_R, self.box_half):
-            e = np.abs(R) @ hh
-            pts += [p - e, p + e]
-        for p, R, r, hl in zip(self.cyl_p, self.cyl_R, self.cyl_radius, self.cyl_half_length):
-            e = np.abs(R[:, 2]) * hl + r
-            pts += [p - e, p + e]
-        pts = np.array(pts)
-        return pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
-
 
 @numba.njit(cache=True)
 def _edt_1d(f, n, d, v, z):
@@ -420,87 +346,6 @@ def _edt_lines(g, f, d, v, z):
             _edt_1d(f, n, d, v, z)
             for k in range(n):
                 g[i, j, k] = d[k]
-
-
-@numba.njit(cache=True)
-def _rasterize_primitives_2d(occ, origin, h, zs, test_r, box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl,
-                             z_lo, z_hi, flat_r):
-    """Marks cells whose centre column passes within test_r of a primitive.
-
-    Each primitive only visits the cells of its own xy bounding box.
-    Primitives with a vertical axis (boxes standing upright, upright
-    cylinders) whose z extent meets [z_lo, z_hi] are rasterized exactly: a
-    cell is marked when its centre is within `flat_r` of the footprint
-    rectangle/disc. Others are sampled at heights `zs` (within test_r).
-    """
-    nz = zs.shape[0]
-    P = np.empty((nz, 3))
-    d = np.empty(nz)
-    no_box = np.zeros((0, 3))
-    no_R = np.zeros((0, 3, 3))
-    no_v = np.zeros(0)
-    nb = box_p.shape[0]
-    for k in range(nb + cyl_p.shape[0]):
-        ex = np.zeros(3)
-        if k < nb:
-            for a in range(3):
-                for c in range(3):
-                    ex[a] += abs(box_R[k, a, c]) * box_half[k, c]
-            cx, cy = box_p[k, 0], box_p[k, 1]
-        else:
-            m = k - nb
-            for a in range(3):
-                ex[a] = abs(cyl_R[m, a, 2]) * cyl_hl[m] + cyl_r[m]
-            cx, cy = cyl_p[m, 0], cyl_p[m, 1]
-        i0 = max(int(math.floor((cx - ex[0] - test_r - origin[0]) / h)), 0)
-        i1 = min(int(math.ceil((cx + ex[0] + test_r - origin[0]) / h)), occ.shape[0] - 1)
-        j0 = max(int(math.floor((cy - ex[1] - test_r - origin[1]) / h)), 0)
-        j1 = min(int(math.ceil((cy + ex[1] + test_r - origin[1]) / h)), occ.shape[1] - 1)
-        # Upright primitives: the exact footprint test.
-        if k < nb:
-            up = abs(box_R[k, 2, 0]) < 1e-9 and abs(box_R[k, 2, 1]) < 1e-9
-            pz = box_p[k, 2]
-        else:
-            up = abs(abs(cyl_R[k - nb, 2, 2]) - 1.0) < 1e-12
-            pz = cyl_p[k - nb, 2]
-        if up:
-            if pz + ex[2] < z_lo or pz - ex[2] > z_hi:
-                continue
-            rr = flat_r * flat_r
-            for i in range(i0, i1 + 1):
-                gx = origin[0] + i * h - cx
-                for j in range(j0, j1 + 1):
-                    gy = origin[1] + j * h - cy
-                    if k < nb:
-                        d2 = 0.0
-                        for a in range(2):
-                            lc = box_R[k, 0, a] * gx + box_R[k, 1, a] * gy
-                            e = abs(lc) - box_half[k, a]
-                            if e > 0:
-                                d2 += e * e
-                    else:
-                        e = math.sqrt(gx * gx + gy * gy) - cyl_r[k - nb]
-                        d2 = e * e if e > 0 else 0.0
-                    if d2 <= rr:
-                        occ[i, j] = True
-            continue
-        for i in range(i0, i1 + 1):
-            for j in range(j0, j1 + 1):
-                if occ[i, j]:
-                    continue
-                for z in range(nz):
-                    P[z, 0] = origin[0] + i * h
-                    P[z, 1] = origin[1] + j * h
-                    P[z, 2] = zs[z]
-                if k < nb:
-                    _primitive_distance_kernel(P, box_p[k:k + 1], box_R[k:k + 1], box_half[k:k + 1],
-                                               no_box, no_R, no_v, no_v, d)
-                else:
-                    m = k - nb
-                    _primitive_distance_kernel(P, no_box, no_R, no_box, cyl_p[m:m + 1], cyl_R[m:m + 1],
-                                               cyl_r[m:m + 1], cyl_hl[m:m + 1], d)
-                if d.min() <= test_r:
-                    occ[i, j] = True
 
 
 @numba.njit(cache=True)
@@ -1520,9 +1365,6 @@ class CollisionChecker:
             order = bisection_order(Q.shape[0])
         out = np.zeros(Q.shape[0], dtype=np.bool_)
         return int(_batch_free(Q, *self._args(), order, True, out))
-
-    def all_free(self, Q: np.ndarray) -> bool:
-        return self.first_collision(Q) < 0
 
     def sphere_centers(self, Q: np.ndarray) -> np.ndarray:
         """World sphere centres (B, S, 3)."""

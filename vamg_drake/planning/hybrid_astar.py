@@ -56,9 +56,6 @@ class Costmap2D:
     def shape(self) -> tuple[int, int]:
         return self.layers.shape[1:]
 
-    def free_mask(self, radius: float, band: int = 0) -> np.ndarray:
-        return self.layers[band] - self.margin > radius
-
     def cell(self, xy: np.ndarray) -> tuple[int, int]:
         i = int(math.floor((xy[0] - self.origin[0]) / self.resolution + 0.5))
         j = int(math.floor((xy[1] - self.origin[1]) / self.resolution + 0.5))

@@ -153,10 +153,6 @@ class TimedTrajectory:
         """A copy whose times start at t0."""
         return TimedTrajectory(times=self.times - self.times[0] + t0, q=self.q, stops=self.stops)
 
-    def wrapped_final(self) -> np.ndarray:
-        """The final configuration with continuous joints wrapped into [-pi, pi)."""
-        return layout.wrap_configuration(self.q[-1])
-
     def to_piecewise_polynomial(self):
         """The same trajectory as a Drake first-order-hold PiecewisePolynomial."""
         if self.num_waypoints == 1:

@@ -424,12 +424,6 @@ class WholeBodyPlanner:
         self.checker.set_environment(env)
         self._hybrid = None
 
-    def prepare_costmap(self, *base_poses: np.ndarray) -> None:
-        """Builds the 2D base costmap of the current environment now (it is
-        otherwise built by the first `plan` on a new environment), covering
-        the given base poses (x, y, theta)."""
-        self._base_planner(*base_poses)
-
     def _base_planner(self, *poses: np.ndarray) -> HybridAStar:
         """The base planner on the current environment's 2D costmap, which
         covers the obstacles and the given base poses with room to manoeuvre."""

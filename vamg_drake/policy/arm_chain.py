@@ -102,11 +102,6 @@ def base_poses(q: np.ndarray) -> np.ndarray:
     return X
 
 
-def planar_pose(x: float, y: float, theta: float) -> np.ndarray:
-    """X_WB (4, 4) of a base at (x, y, theta)."""
-    return base_poses(np.array([[x, y, theta] + [0.0] * (layout.NQ - 3)]))[0]
-
-
 @numba.njit(cache=True)
 def _chain_scratch(n):
     """Scratch buffers for `_chain_one`: R (3,3), p (3,), tmp (3,3), origins and axes (n,3)."""
@@ -205,10 +200,3 @@ def chain_fk_jacobian(X_PJ, joint_type, axis, column, q_chain, X_out, J_out, wit
         R, p, tmp, origins, axes = _chain_scratch(n)
         for b in range(k * block, min(B, (k + 1) * block)):
             _chain_one(X_PJ, joint_type, axis, column, q_chain[b], X_out[b], J_out[b], with_jacobian, R, p, origins, axes, tmp)
-
-
-@numba.njit(cache=True)
-def yoshikawa(J: np.ndarray) -> float:
-    """sqrt(det(J J^T)) of one 6 x n Jacobian."""
-    d = np.linalg.det(J @ J.T)
-    return math.sqrt(d) if d > 0.0 else 0.0

@@ -319,11 +319,6 @@ class TorsoHeightMap:
         h = np.minimum((b + 0.5) * self.torso_bin, layout.Q_UPPER[layout.TORSO])
         return np.where(inside & (b >= 0), h, np.nan)
 
-    def reach_count(self, p_BE: np.ndarray) -> np.ndarray:
-        """Samples (B,) that reached each position's bin with its best torso height."""
-        idx, inside = self._cells(p_BE)
-        return np.where(inside, self.count[idx[:, 0], idx[:, 1], idx[:, 2]], 0)
-
     def horizontal_reach(self) -> tuple[float, float]:
         """(min, max) horizontal distance from the base origin of any reached bin [m]."""
         ix, iy, _ = np.nonzero(self.best_bin >= 0)

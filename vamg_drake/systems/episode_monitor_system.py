@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import QueryObject
 from pydrake.systems.framework import EventStatus, LeafSystem
@@ -67,7 +66,6 @@ class EpisodeMonitor(LeafSystem):
         self._grasp_started = self.DeclareAbstractState(AbstractValue.Make(False))
         self.DeclarePeriodicUnrestrictedUpdateEvent(self.config.period, 0.0, self._tick)
         self.DeclareStateOutputPort("outcome", self._outcome)
-        self.min_gripper_command = np.inf
 
     def _report(self, context) -> PolicyReport | None:
         goal = self._policy_port.Eval(context) if self._policy_port.HasValue(context) else None

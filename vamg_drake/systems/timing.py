@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
-import time
-
 import numpy as np
 
 
@@ -13,14 +10,6 @@ class ModuleTimings:
 
     def __init__(self) -> None:
         self.samples: dict[str, list[float]] = {}
-
-    @contextlib.contextmanager
-    def measure(self, module: str):
-        t0 = time.perf_counter()
-        try:
-            yield
-        finally:
-            self.samples.setdefault(module, []).append(1000.0 * (time.perf_counter() - t0))
 
     def add(self, module: str, ms: float) -> None:
         self.samples.setdefault(module, []).append(float(ms))

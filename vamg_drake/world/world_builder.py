@@ -109,10 +109,6 @@ class World:
     #: Plant velocity index per extended joint.
     velocity_index: np.ndarray
 
-    def robot_positions(self, plant_positions: np.ndarray) -> np.ndarray:
-        """Extended configuration (15,) from the plant's full position vector."""
-        return np.asarray(plant_positions)[self.position_index]
-
 
 def _gains_for(joint: str, gains: RobotGains) -> tuple[float, float]:
     if joint in ("base_x", "base_y"):
