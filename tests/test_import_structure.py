@@ -4,7 +4,7 @@ Every module of ``vamg_drake`` is parsed with ``ast`` (nothing is imported),
 and every ``import`` / ``from ... import`` statement is resolved to the
 package modules it loads, wherever it stands: at module level, under
 ``if TYPE_CHECKING:`` (an annotation is a dependency too) or inside a
-function. ``from vamg_drake.x import y`` is an edge to ``vamg_drake.x.y`` when
+function or class body. ``from vamg_drake.x import y`` is an edge to ``vamg_drake.x.y`` when
 ``y`` is a submodule, else to ``vamg_drake.x``.
 
 Layers, lowest first; a module may import modules of its own layer and of
@@ -18,7 +18,8 @@ rank  layer               modules
                           dataclass), ``provenance`` (git and package versions,
                           atomic writes), ``rendering_check`` (the EGL
                           libraries headless rendering needs), ``scenarios``
-                          (shipped scenario files): no package imports at all
+                          (shipped scenario files); none imports another
+                          package module
 1     robot               ``robot.*``: layout, kinematics, spheres, camera
 2     perception          ``perception.*``
 3     world               ``world.*``
@@ -33,10 +34,11 @@ rank  layer               modules
 10    cli                 ``cli``
 ====  ==================  =====================================================
 
-A function-local import of a package module is forbidden: it hides a cycle
-or an upward import from readers (and from this test's intent). Function-local
-imports remain allowed only for the optional third-party dependencies in
-`LAZY_OPTIONAL_DEPENDENCIES`, which a base install does not have.
+An import inside a function or class body is forbidden, of a package module
+(it would hide a cycle or an upward import) and of a required third-party
+package alike (pydrake, scipy, tqdm, ... load at module level). It remains
+allowed only for the optional dependencies in `LAZY_OPTIONAL_DEPENDENCIES`,
+which a base install does not have.
 """
 
 import ast
