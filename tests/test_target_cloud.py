@@ -49,7 +49,7 @@ def test_target_cloud_keeps_the_surroundings_and_drops_the_robot() -> None:
     X_WC[:3, :3] = [[0, 0, 1], [-1, 0, 0], [0, -1, 0]]
     X_WC[:3, 3] = centers[gripper] - [1.0, 0.0, 0.0]
     depth = np.ones((K.height, K.width), np.float32)
-    config = TargetCloudConfig(mirror=False)
+    config = TargetCloudConfig()
 
     system = TargetCloud(K, config)
     context = system.CreateDefaultContext()
@@ -71,3 +71,36 @@ def test_target_cloud_keeps_the_surroundings_and_drops_the_robot() -> None:
     np.testing.assert_allclose(cloud, expected)
     d_cloud = np.linalg.norm(cloud[:, None] - centers[None], axis=2) - spheres.radius[None]
     assert d_cloud.min() > config.self_margin
+
+
+def test_target_cloud_keeps_what_is_out_of_view_and_drops_what_the_camera_sees_through() -> None:
+    """Points stay while the head looks elsewhere (however long), and go when a
+    later image sees past them (the object moved): a wall 1 m ahead is seen,
+    the camera turns away for 10 s, turns back and the wall is now 2 m away."""
+    p_WT = np.array([1.0, 0.0, 1.0])
+    X_WC = np.eye(4)
+    X_WC[:3, :3] = [[0, 0, 1], [-1, 0, 0], [0, -1, 0]]  # optical z along world x
+    X_WC[:3, 3] = [0.0, 0.0, 1.0]
+    X_away = X_WC.copy()
+    X_away[:3, :3] = [[0, 0, -1], [1, 0, 0], [0, -1, 0]]  # optical z along world -x
+    system = TargetCloud(K, TargetCloudConfig())
+    context = system.CreateDefaultContext()
+    q = layout.stow_configuration(-3.0, 0.0, 0.0)  # the robot far behind the camera: nothing self-filtered
+
+    def look(X: np.ndarray, depth_m: float, until: float) -> np.ndarray:
+        image = ImageDepth32F(K.width, K.height)
+        image.mutable_data[:, :, 0] = depth_m
+        system.GetInputPort("depth_image").FixValue(context, image)
+        system.GetInputPort("X_WC").FixValue(context, RigidTransform(X))
+        simulator.AdvanceTo(until)
+        return system.GetOutputPort("target_cloud").Eval(context).copy()
+
+    system.GetInputPort("target").FixValue(context, p_WT)
+    system.GetInputPort("robot_configuration").FixValue(context, q)
+    simulator = Simulator(system, context)
+    first = look(X_WC, 1.0, 0.05)
+    assert len(first) > 100 and np.allclose(first[:, 0], 1.0, atol=1e-3)
+    np.testing.assert_array_equal(look(X_away, 1.0, 10.0), first)  # out of view: kept
+    assert len(look(X_WC, 0.95, 10.15)) >= len(first)  # something in front occludes them: kept
+    assert len(look(X_WC, 2.0, 10.3)) == 0  # seen through: dropped (the wall at 2 m is beyond `radius`)
+

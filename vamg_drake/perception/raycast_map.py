@@ -303,13 +303,8 @@ class PointMap:
         # 4. Carve the existing map with this image.
         n_carved = 0
         if self.num_points:
-            z_meas = _carving_depth(d, c.carve_footprint_px, c.carve_no_return)
-            X_CW = np.linalg.inv(X)
-            i = self.intrinsics
-            keep = _carve_keep_mask(
-                self._points, X_CW, z_meas, i.fx, i.fy, i.cx, i.cy,
-                float(c.carve_tolerance), float(c.depth.depth_min), float(c.depth.depth_max),
-            )
+            keep = points_not_seen_through(self._points, d, X, self.intrinsics, c.carve_tolerance,
+                                           c.carve_footprint_px, c.carve_no_return, c.depth)
             removed = np.flatnonzero(~keep)
             n_carved = int(removed.size)
             if n_carved:
@@ -376,6 +371,25 @@ def _table_capacity(n: int) -> int:
     while cap < 2 * n:
         cap *= 2
     return cap
+
+
+def points_not_seen_through(points_W: np.ndarray, depth: np.ndarray, X_WC: np.ndarray, intrinsics: CameraIntrinsics,
+                            tolerance: float, footprint_px: int, carve_no_return: bool,
+                            depth_config: DepthToPointsConfig) -> np.ndarray:
+    """(N,) bool: the points that this depth image does not see through.
+
+    A point is seen through (free space now) when it projects into the image
+    within the depth range and lies more than `tolerance` in front of the
+    measured depth, taken as the minimum over a window of `footprint_px`
+    pixels around it (so that a silhouette's edge does not carve the object);
+    unknown pixels carve nothing, and no-return pixels carve up to the range's
+    end when `carve_no_return`. Points outside the image, or behind what it
+    sees, are kept."""
+    z_meas = _carving_depth(depth, footprint_px, carve_no_return)
+    X_CW = np.linalg.inv(X_WC)
+    i = intrinsics
+    return _carve_keep_mask(np.ascontiguousarray(points_W, dtype=float), X_CW, z_meas, i.fx, i.fy, i.cx, i.cy,
+                            float(tolerance), float(depth_config.depth_min), float(depth_config.depth_max))
 
 
 def _carving_depth(depth: np.ndarray, footprint: int, carve_no_return: bool) -> np.ndarray:

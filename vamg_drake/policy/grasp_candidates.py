@@ -28,8 +28,9 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
-from vamg_drake.planning.collision import support_height
+from vamg_drake.perception.point_clusters import component_nearest
 from vamg_drake.perception.voxels import first_in_voxel
+from vamg_drake.planning.collision import support_height
 from vamg_drake.robot.layout import GRIPPER_MAX_OPENING
 
 
@@ -355,18 +356,7 @@ class AntipodalGraspSampler:
         above = local[local[:, 2] > z_support + max(self._spacing, cfg.voxel_size)]
         if above.shape[0] < cfg.min_support:
             return None
-        tree = cKDTree(above)
-        start = int(tree.query(p_WT)[1])
-        member = np.zeros(above.shape[0], dtype=bool)
-        member[start] = True
-        frontier = [start]
-        link = cfg.cluster_link * max(self._spacing, cfg.voxel_size)
-        while frontier:
-            linked = np.unique(np.concatenate([np.asarray(n, dtype=int) for n in tree.query_ball_point(above[frontier], link)]))
-            linked = linked[~member[linked]]
-            member[linked] = True
-            frontier = linked.tolist()
-        points = above[member]
+        points = above[component_nearest(above, p_WT, cfg.cluster_link * max(self._spacing, cfg.voxel_size))]
         return (points, z_support) if points.shape[0] >= cfg.min_support else None
 
     def verify(self, p_WS: np.ndarray, p_WT: np.ndarray, X_WG: np.ndarray, width: np.ndarray) -> np.ndarray:

@@ -30,6 +30,7 @@ import time
 import numpy as np
 from scipy.spatial import cKDTree
 
+from vamg_drake.perception.point_clusters import MirrorCompletionConfig, mirrored_object_points
 from vamg_drake.planning.collision import CollisionChecker, CollisionCheckerConfig, CollisionEnvironment
 from vamg_drake.policy.arm_chain import base_poses
 from vamg_drake.policy.behaviour_tree import FailureCategory, PolicyInputs, SubgoalProposal, SubgoalSamplers
@@ -67,6 +68,15 @@ class SubgoalPipelineConfig:
     grasp_cloud_radius: float = 0.30
     #: A map point with a dense-cloud point this close is left out of the grasp cloud [m].
     dense_cover_radius: float = 0.04
+    #: Shape completion of the dense cloud: a head camera sees one side of the
+    #: object, and an antipodal grasp needs both. The target's own points are
+    #: mirrored about the vertical axis through the target point (exact for the
+    #: round and box-like objects when that point is the object's centre; the
+    #: role a learned grasp network's shape prior plays in the paper). Grasps
+    #: are proposed on the completed cloud first and, when it yields none (an
+    #: object seen from above, or one that is not symmetric, such as a curved
+    #: banana), on the observed cloud alone.
+    mirror: MirrorCompletionConfig = dc.field(default_factory=MirrorCompletionConfig)
     #: With a dense target cloud, the pre-grasp sampler's end-effector poses are
     #: the grasp candidates' pre-grasp poses (else the sphere around the target).
     pregrasp_from_grasps: bool = True
@@ -260,15 +270,21 @@ class SubgoalPipeline:
         if self._candidates is not None and self._candidates[0] is inputs:
             return self._candidates[1]
         t0 = time.perf_counter()
-        candidates = self.grasp_source.propose(self._grasp_cloud(inputs, p_WM, p_WT), p_WT, self.rng)
+        candidates = self.grasp_source.propose(self._grasp_cloud(inputs, p_WM, p_WT, completed=True), p_WT, self.rng)
+        if len(candidates) == 0 and self.config.mirror.enabled:
+            observed = self.grasp_source.propose(self._grasp_cloud(inputs, p_WM, p_WT), p_WT, self.rng)
+            if len(observed):
+                candidates = observed
         if self.timings is not None:
             self.timings.add("grasp_candidates", 1e3 * (time.perf_counter() - t0))
         self._candidates = (inputs, candidates)
         return candidates
 
-    def _grasp_cloud(self, inputs: PolicyInputs, p_WM: np.ndarray, p_WT: np.ndarray) -> np.ndarray:
+    def _grasp_cloud(self, inputs: PolicyInputs, p_WM: np.ndarray, p_WT: np.ndarray,
+                     completed: bool = False) -> np.ndarray:
         """The cloud around the target for grasp candidates: the dense cloud where
-        it has points, the map's points elsewhere."""
+        it has points (with the mirrored completion when `completed` and
+        ``mirror.enabled``), the map's points elsewhere."""
         cloud = p_WM[np.linalg.norm(p_WM - p_WT, axis=1) <= self.config.grasp_cloud_radius]
         if inputs.p_WS is not None and len(inputs.p_WS):
             # The dense cloud replaces the coarse map voxels where it has points:
@@ -276,6 +292,8 @@ class SubgoalPipeline:
             # block every finger placement on small objects.
             dense = np.asarray(inputs.p_WS, dtype=float).reshape(-1, 3)
             dense = dense[np.linalg.norm(dense - p_WT, axis=1) <= self.config.grasp_cloud_radius]
+            if len(dense) and completed and self.config.mirror.enabled:
+                dense = np.concatenate([dense, mirrored_object_points(dense, p_WT, self.config.mirror)])
             if len(dense):
                 d, _ = cKDTree(dense).query(cloud, distance_upper_bound=self.config.dense_cover_radius)
                 cloud = np.concatenate([dense, cloud[~np.isfinite(d)]])

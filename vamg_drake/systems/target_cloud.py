@@ -5,12 +5,10 @@ objects' grasp candidates; this system back-projects every depth image at full
 resolution and accumulates the points within `radius` of the target (merged
 on a fine voxel grid), for the SubgoalPolicy's optional ``target_cloud`` input.
 
-Shape completion: a head camera sees one side of the object, and an antipodal
-grasp needs both. With ``mirror`` on, the object's points (those above the
-support surface near the target) are mirrored about the vertical axis through
-the target point, the known object position -- exact for the round and
-box-like objects of the benchmark when the target point is the object's
-centre, and the role a learned grasp network's shape prior plays in the paper.
+Points stay, however old, until an image sees through them (the object moved,
+or they were never there): the policy may choose a grasp from an earlier,
+closer view while the head looks elsewhere. The completion of the object's
+unseen side is the grasp cloud's business (`SubgoalPipeline`).
 """
 
 import dataclasses as dc
@@ -22,7 +20,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 from pydrake.systems.sensors import ImageDepth32F
 
 from vamg_drake.perception.depth_points import DepthBackProjector, validate_pose
-from vamg_drake.perception.raycast_map import inside_any_sphere
+from vamg_drake.perception.raycast_map import inside_any_sphere, points_not_seen_through
 from vamg_drake.perception.voxels import first_in_voxel
 from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics
@@ -37,11 +35,14 @@ class TargetCloudConfig:
         radius: points within this distance of the target are kept [m].
         voxel_size: accumulated points are merged on this grid [m].
         max_points: the accumulated cloud is capped (oldest dropped first).
-        memory: points not seen again for this long are dropped [s] (the
-            object may have been nudged; stale copies block every grasp).
-        mirror: complete the object by mirroring about the target's vertical axis.
-        object_radius: horizontal radius around the target holding the object [m].
-        support_clearance: object points lie this far above the support surface [m].
+        carve_tolerance: a kept point that the camera now sees through, more
+            than this in front of the measured depth, is dropped [m] (the
+            object moved, or was never there); points out of view, or behind
+            what the camera sees, stay however old they are, so that a grasp
+            can still be chosen from an earlier, closer view while the head
+            looks elsewhere.
+        carve_footprint_px: half-width of the min-depth window of that test
+            [px], so that the silhouette of an object does not carve it.
         self_margin: points within this distance of the robot's spheres are dropped [m].
         period: update period [s].
     """
@@ -49,10 +50,8 @@ class TargetCloudConfig:
     radius: float = 0.3
     voxel_size: float = 0.004
     max_points: int = 30000
-    memory: float = 3.0
-    mirror: bool = True
-    object_radius: float = 0.12
-    support_clearance: float = 0.008
+    carve_tolerance: float = 0.01
+    carve_footprint_px: int = 2
     self_margin: float = 0.02
     period: float = 0.1
 
@@ -61,20 +60,6 @@ def merge_on_grid(points: np.ndarray, voxel: float) -> np.ndarray:
     """One point per voxel of its xyz (extra columns ride along), the newest (last) one winning."""
     newest_first = points[::-1]
     return newest_first[first_in_voxel(newest_first, voxel)][::-1]
-
-
-def mirrored_object_points(p_WS: np.ndarray, p_WT: np.ndarray, object_radius: float,
-                           support_clearance: float) -> np.ndarray:
-    """The object's points mirrored about the vertical axis through p_WT."""
-    horizontal = np.linalg.norm(p_WS[:, :2] - p_WT[:2], axis=1)
-    near = p_WS[horizontal <= object_radius]
-    if near.shape[0] == 0:
-        return near
-    support = np.percentile(near[:, 2], 2.0)
-    obj = near[near[:, 2] >= support + support_clearance]
-    mirrored = obj.copy()
-    mirrored[:, :2] = 2.0 * p_WT[:2] - obj[:, :2]
-    return mirrored
 
 
 class TargetCloud(LeafSystem):
@@ -92,6 +77,7 @@ class TargetCloud(LeafSystem):
     def __init__(self, intrinsics: CameraIntrinsics, config: TargetCloudConfig | None = None):
         super().__init__()
         self._config = config or TargetCloudConfig()
+        self._intrinsics = intrinsics
         self._projector = DepthBackProjector(intrinsics)
         self._depth_port = self.DeclareAbstractInputPort(
             "depth_image", AbstractValue.Make(ImageDepth32F(intrinsics.width, intrinsics.height)))
@@ -120,18 +106,17 @@ class TargetCloud(LeafSystem):
         q = np.asarray(self._q_port.Eval(context), dtype=float)
         if new.shape[0] and np.all(np.isfinite(q)):
             new = new[~inside_any_sphere(new, self._spheres.world_spheres(q), self._spheres.radius + cfg.self_margin)]
-        if new.shape[0] == 0:
-            return EventStatus.Succeeded()
         t = context.get_time()
-        seen = context.get_abstract_state(self._seen).get_value()
-        seen = seen[seen[:, 3] >= t - cfg.memory]
+        kept = context.get_abstract_state(self._seen).get_value()
+        seen = kept
+        if kept.shape[0]:
+            seen = kept[points_not_seen_through(kept[:, :3], depth, X_WC, self._intrinsics, cfg.carve_tolerance,
+                                                cfg.carve_footprint_px, True, self._projector.config)]
+        if new.shape[0] == 0 and seen.shape[0] == kept.shape[0]:
+            return EventStatus.Succeeded()
         seen = merge_on_grid(np.concatenate([seen, np.c_[new, np.full(len(new), t)]]), cfg.voxel_size)
         seen = seen[-cfg.max_points:]
         state.get_mutable_abstract_state(self._seen).set_value(seen)
-        seen = seen[:, :3]
-        cloud = seen
-        if cfg.mirror:
-            cloud = np.concatenate([seen, mirrored_object_points(seen, p_WT, cfg.object_radius,
-                                                                 cfg.support_clearance)])
+        cloud = seen[:, :3]
         state.get_mutable_abstract_state(self._cloud).set_value(cloud)
         return EventStatus.Succeeded()
