@@ -86,8 +86,7 @@ class TargetCloud(LeafSystem):
         self._q_port = self.DeclareVectorInputPort("robot_configuration", layout.NQ)
 
         self._spheres = SphereModel.load()
-        self._seen = self.DeclareAbstractState(AbstractValue.Make(np.zeros((0, 4))))  # x, y, z, time
-        self._cloud = self.DeclareAbstractState(AbstractValue.Make(np.zeros((0, 3))))
+        self._cloud = self.DeclareAbstractState(AbstractValue.Make(np.zeros((0, 3))))  # oldest first
         self.DeclareStateOutputPort("target_cloud", self._cloud)
         self.DeclarePeriodicUnrestrictedUpdateEvent(self._config.period, 0.0, self._update)
 
@@ -106,17 +105,13 @@ class TargetCloud(LeafSystem):
         q = np.asarray(self._q_port.Eval(context), dtype=float)
         if new.shape[0] and np.all(np.isfinite(q)):
             new = new[~inside_any_sphere(new, self._spheres.world_spheres(q), self._spheres.radius + cfg.self_margin)]
-        t = context.get_time()
-        kept = context.get_abstract_state(self._seen).get_value()
-        seen = kept
+        kept = context.get_abstract_state(self._cloud).get_value()
+        cloud = kept
         if kept.shape[0]:
-            seen = kept[points_not_seen_through(kept[:, :3], depth, X_WC, self._intrinsics, cfg.carve_tolerance,
-                                                cfg.carve_footprint_px, True, self._projector.config)]
-        if new.shape[0] == 0 and seen.shape[0] == kept.shape[0]:
+            cloud = kept[points_not_seen_through(kept, depth, X_WC, self._intrinsics, cfg.carve_tolerance,
+                                                 cfg.carve_footprint_px, True, self._projector.config)]
+        if new.shape[0] == 0 and cloud.shape[0] == kept.shape[0]:
             return EventStatus.Succeeded()
-        seen = merge_on_grid(np.concatenate([seen, np.c_[new, np.full(len(new), t)]]), cfg.voxel_size)
-        seen = seen[-cfg.max_points:]
-        state.get_mutable_abstract_state(self._seen).set_value(seen)
-        cloud = seen[:, :3]
+        cloud = merge_on_grid(np.concatenate([cloud, new]), cfg.voxel_size)[-cfg.max_points:]
         state.get_mutable_abstract_state(self._cloud).set_value(cloud)
         return EventStatus.Succeeded()
