@@ -6,10 +6,19 @@ import yaml
 from pydrake.geometry import Box, Cylinder
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+from pydrake.multibody.tree import JacobianWrtVariable
 from pydrake.systems.framework import DiagramBuilder
 
 from vamg_drake.robot import layout
-from vamg_drake.robot.kinematics import EXTENDED_JOINTS, FetchKinematics, fetch_urdf_path
+from vamg_drake.robot.kinematics import (
+    EXTENDED_JOINTS,
+    JOINT_SKIPPED,
+    NX,
+    FetchKinematics,
+    fetch_urdf_path,
+    link_transforms,
+    tip_jacobian,
+)
 from vamg_drake.robot.spheres import FINGER_LINKS, SPHERES_YAML, SphereModel, fit_spheres
 
 
@@ -62,6 +71,43 @@ def test_fk_agrees_with_drake(drake_fetch):
         for i, name in enumerate(kin.link_names):
             X = plant.CalcRelativeTransform(pc, plant.world_frame(), plant.GetFrameByName(name)).GetAsMatrix4()
             np.testing.assert_allclose(X_ours[b, i], X, atol=1e-9, err_msg=name)
+
+
+def test_kernel_agrees_with_drake_on_every_link_with_its_jacobian(drake_fetch):
+    """The one kinematics kernel: every link's pose to 1e-12 of Drake's, the
+    same bits when only a subtree is computed (other rows untouched), and
+    each link's geometric Jacobian to 1e-12 of Drake's."""
+    plant, _, diagram, context = drake_fetch
+    pc = plant.GetMyContextFromRoot(context)
+    tree = FetchKinematics.instance().tree
+    L = len(tree.link_names)
+    column = np.arange(NX, dtype=np.int64)  # every variable is a Jacobian column
+    # Drake's velocity index of each extended-configuration variable.
+    drake_v = [plant.GetJointByName(name).velocity_start() for name in EXTENDED_JOINTS]
+    rng = np.random.default_rng(7)
+    T = np.empty((L, 3, 4))
+    J = np.empty((6, NX))
+    for v in _random_extended(rng, 25):
+        _set_extended(plant, pc, v)
+        link_transforms(tree.parent, tree.X_PJ, tree.joint_type, tree.axis, tree.var_index, v, T)
+        for i, name in enumerate(tree.link_names):
+            frame = plant.GetFrameByName(name)
+            X = plant.CalcRelativeTransform(pc, plant.world_frame(), frame).GetAsMatrix4()
+            np.testing.assert_allclose(T[i], X[:3], rtol=0, atol=1e-12, err_msg=name)
+            Jd = plant.CalcJacobianSpatialVelocity(pc, JacobianWrtVariable.kV, frame, np.zeros(3),
+                                                   plant.world_frame(), plant.world_frame())
+            tip_jacobian(tree.parent, tree.joint_type, tree.axis, tree.var_index, T, i, column, J)
+            np.testing.assert_allclose(J[:3], Jd[3:, drake_v], rtol=0, atol=1e-12, err_msg=f"{name} v")
+            np.testing.assert_allclose(J[3:], Jd[:3, drake_v], rtol=0, atol=1e-12, err_msg=f"{name} w")
+        # A subtree: the same bits for its links, nothing written elsewhere.
+        links = rng.choice(L, size=3, replace=False)
+        masked = tree.subtree_joint_types(links)
+        S = np.full((L, 3, 4), np.nan)
+        link_transforms(tree.parent, tree.X_PJ, masked, tree.axis, tree.var_index, v, S)
+        computed = masked != JOINT_SKIPPED
+        assert computed[links].all()
+        np.testing.assert_array_equal(S[computed], T[computed])
+        assert np.isnan(S[~computed]).all()
 
 
 def test_camera_frame_looks_forward_from_the_head():

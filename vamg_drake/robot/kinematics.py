@@ -1,9 +1,15 @@
-"""Vectorized forward kinematics of the Fetch, read from `models/fetch/fetch.urdf`.
+"""Forward kinematics of the Fetch, read from `models/fetch/fetch.urdf`.
 
 The kinematic tree (joint origins, axes, types) is parsed from the URDF, the
-one source of these facts, into flat arrays that a Numba kernel walks for a
-whole batch of configurations at once. `tests/test_robot_model.py` checks the
-result against Drake's `MultibodyPlant`.
+one source of these facts, into flat arrays. One Numba kernel,
+`link_transforms`, walks them for one configuration into a buffer the caller
+owns, computing only the links of a subtree mask (`KinematicTree.subtree_joint_types`);
+`tip_jacobian` adds the geometric Jacobian of a link from its output. Every
+user of the robot's kinematics calls these two: the batched link poses here,
+the sphere centres (`vamg_drake.robot.spheres`), the collision checks
+(`vamg_drake.planning.sphere_checks`), the arm chain and its IK and kinematic
+maps (`vamg_drake.policy`). `tests/test_robot_model.py` checks them against
+Drake's `MultibodyPlant`.
 
 The *extended* configuration used here is
 ``[q (11, see layout), head_pan, head_tilt, l_finger, r_finger]``.
@@ -36,6 +42,8 @@ FINGER_SLICE = slice(layout.NQ + 2, layout.NQ + 4)
 JOINT_FIXED = 0
 JOINT_REVOLUTE = 1
 JOINT_PRISMATIC = 2
+#: Joint type of a link outside a subtree mask: `link_transforms` skips it.
+JOINT_SKIPPED = -1
 
 CAMERA_FRAME = "head_camera_depth_optical_frame"
 GRASP_FRAME = "gripper_link"
@@ -103,6 +111,17 @@ class KinematicTree:
         except ValueError:
             raise KeyError(f"{FETCH_URDF.name}: no link named '{name}'") from None
 
+    def subtree_joint_types(self, links) -> np.ndarray:
+        """The joint types with JOINT_SKIPPED for every link that is neither
+        in `links` (indices) nor an ancestor of one: the subtree mask of
+        `link_transforms`, which then computes only the links a caller needs."""
+        needed = np.zeros(self.parent.shape[0], bool)
+        needed[np.asarray(links, dtype=np.int64)] = True
+        for i in range(self.parent.shape[0] - 1, -1, -1):  # parents come before children
+            if needed[i] and self.parent[i] >= 0:
+                needed[self.parent[i]] = True
+        return np.ascontiguousarray(np.where(needed, self.joint_type, JOINT_SKIPPED), dtype=self.joint_type.dtype)
+
 
 def parse_kinematic_tree(urdf_path: Path | None = None) -> KinematicTree:
     """Parses the URDF joints into a `KinematicTree` rooted at 'world'."""
@@ -150,42 +169,107 @@ def parse_kinematic_tree(urdf_path: Path | None = None) -> KinematicTree:
     return KinematicTree(tuple(order), parent, X_PJ, joint_type, axis, var_index)
 
 
-@numba.njit(cache=True, fastmath=False)
-def _fk_kernel(parent, X_PJ, joint_type, axis, var_index, V, out):
-    """out[b, i] = X_W(link i) for every configuration b of V (B, NX)."""
-    B = V.shape[0]
+@numba.njit(cache=True)
+def link_transforms(parent, X_PJ, joint_type, axis, var_index, v, T):
+    """T[i, :3, :] = X_W(link i) (rows of the pose) for the extended
+    configuration v (NX,), for every link whose joint_type is not
+    JOINT_SKIPPED (`KinematicTree.subtree_joint_types`); other rows are left
+    as they are. T (L, 3, 4) or (L, 4, 4) is the caller's buffer: nothing is
+    allocated, and no array views are taken (they cost reference counting)."""
     L = parent.shape[0]
-    for b in range(B):
-        for i in range(L):
-            # Joint motion X_JC.
-            M = np.eye(4)
-            k = var_index[i]
-            if k >= 0:
-                v = V[b, k]
-                ax, ay, az = axis[i, 0], axis[i, 1], axis[i, 2]
-                if joint_type[i] == 1:
-                    c = math.cos(v)
-                    s = math.sin(v)
-                    t = 1.0 - c
-                    M[0, 0] = t * ax * ax + c
-                    M[0, 1] = t * ax * ay - s * az
-                    M[0, 2] = t * ax * az + s * ay
-                    M[1, 0] = t * ax * ay + s * az
-                    M[1, 1] = t * ay * ay + c
-                    M[1, 2] = t * ay * az - s * ax
-                    M[2, 0] = t * ax * az - s * ay
-                    M[2, 1] = t * ay * az + s * ax
-                    M[2, 2] = t * az * az + c
-                else:
-                    M[0, 3] = v * ax
-                    M[1, 3] = v * ay
-                    M[2, 3] = v * az
-            p = parent[i]
+    for i in range(L):
+        jt = joint_type[i]
+        if jt < 0:
+            continue
+        k = var_index[i]
+        # Joint motion X_JC: rotation r about the axis, or translation t along it.
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
+        t0, t1, t2 = 0.0, 0.0, 0.0
+        if k >= 0:
+            q = v[k]
+            ax, ay, az = axis[i, 0], axis[i, 1], axis[i, 2]
+            if jt == 1:
+                c = math.cos(q)
+                s = math.sin(q)
+                tt = 1.0 - c
+                r00 = tt * ax * ax + c
+                r01 = tt * ax * ay - s * az
+                r02 = tt * ax * az + s * ay
+                r10 = tt * ax * ay + s * az
+                r11 = tt * ay * ay + c
+                r12 = tt * ay * az - s * ax
+                r20 = tt * ax * az - s * ay
+                r21 = tt * ay * az + s * ax
+                r22 = tt * az * az + c
+            elif jt == 2:
+                t0, t1, t2 = q * ax, q * ay, q * az
+        p = parent[i]
+        # Row by row: A = X_WP @ X_PJ, then T[i] = A @ X_JC.
+        for a in range(3):
             if p < 0:
-                P = X_PJ[i]
+                a0, a1, a2, a3 = X_PJ[i, a, 0], X_PJ[i, a, 1], X_PJ[i, a, 2], X_PJ[i, a, 3]
             else:
-                P = out[b, p] @ X_PJ[i]
-            out[b, i] = P @ M
+                w0, w1, w2, w3 = T[p, a, 0], T[p, a, 1], T[p, a, 2], T[p, a, 3]
+                a0 = w0 * X_PJ[i, 0, 0] + w1 * X_PJ[i, 1, 0] + w2 * X_PJ[i, 2, 0]
+                a1 = w0 * X_PJ[i, 0, 1] + w1 * X_PJ[i, 1, 1] + w2 * X_PJ[i, 2, 1]
+                a2 = w0 * X_PJ[i, 0, 2] + w1 * X_PJ[i, 1, 2] + w2 * X_PJ[i, 2, 2]
+                a3 = w0 * X_PJ[i, 0, 3] + w1 * X_PJ[i, 1, 3] + w2 * X_PJ[i, 2, 3] + w3
+            if jt == 1:
+                T[i, a, 0] = a0 * r00 + a1 * r10 + a2 * r20
+                T[i, a, 1] = a0 * r01 + a1 * r11 + a2 * r21
+                T[i, a, 2] = a0 * r02 + a1 * r12 + a2 * r22
+            else:  # no rotation
+                T[i, a, 0] = a0
+                T[i, a, 1] = a1
+                T[i, a, 2] = a2
+            T[i, a, 3] = a0 * t0 + a1 * t1 + a2 * t2 + a3
+
+
+@numba.njit(cache=True)
+def tip_jacobian(parent, joint_type, axis, var_index, T, tip, column, J):
+    """J (6, n): the geometric Jacobian of link `tip`'s origin, rows (v, w)
+    in W, from the link poses T that `link_transforms` computed. Column
+    column[k] belongs to variable k of the extended configuration (-1: not a
+    column); columns of joints off the path to `tip` are zero."""
+    for c in range(J.shape[1]):
+        for r in range(6):
+            J[r, c] = 0.0
+    px, py, pz = T[tip, 0, 3], T[tip, 1, 3], T[tip, 2, 3]
+    i = tip
+    while i >= 0:
+        k = var_index[i]
+        if k >= 0 and joint_type[i] > 0 and column[k] >= 0:
+            c = column[k]
+            ax, ay, az = axis[i, 0], axis[i, 1], axis[i, 2]
+            wx = T[i, 0, 0] * ax + T[i, 0, 1] * ay + T[i, 0, 2] * az
+            wy = T[i, 1, 0] * ax + T[i, 1, 1] * ay + T[i, 1, 2] * az
+            wz = T[i, 2, 0] * ax + T[i, 2, 1] * ay + T[i, 2, 2] * az
+            if joint_type[i] == 1:
+                # The joint's origin is link i's origin (rotation moves neither).
+                rx, ry, rz = px - T[i, 0, 3], py - T[i, 1, 3], pz - T[i, 2, 3]
+                J[0, c] = wy * rz - wz * ry
+                J[1, c] = wz * rx - wx * rz
+                J[2, c] = wx * ry - wy * rx
+                J[3, c] = wx
+                J[4, c] = wy
+                J[5, c] = wz
+            else:
+                J[0, c] = wx
+                J[1, c] = wy
+                J[2, c] = wz
+        i = parent[i]
+
+
+@numba.njit(cache=True)
+def _link_poses(parent, X_PJ, joint_type, axis, var_index, V, out):
+    """out[b] (L, 4, 4) = every link's pose for each configuration V[b]."""
+    for b in range(V.shape[0]):
+        link_transforms(parent, X_PJ, joint_type, axis, var_index, V[b], out[b])
+        for i in range(parent.shape[0]):
+            out[b, i, 3, 0] = 0.0
+            out[b, i, 3, 1] = 0.0
+            out[b, i, 3, 2] = 0.0
+            out[b, i, 3, 3] = 1.0
     return out
 
 
@@ -232,9 +316,11 @@ class FetchKinematics:
     def poses_extended(self, V: np.ndarray) -> np.ndarray:
         """Link poses (B, L, 4, 4) for extended configurations V (B, NX)."""
         V = np.ascontiguousarray(np.atleast_2d(V), dtype=float)
+        if V.ndim != 2 or V.shape[1] != NX:
+            raise ValueError(f"extended configurations must have shape (B, {NX}), got {V.shape}")
         out = np.empty((V.shape[0], len(self.link_names), 4, 4))
         t = self.tree
-        return _fk_kernel(t.parent, t.X_PJ, t.joint_type, t.axis, t.var_index, V, out)
+        return _link_poses(t.parent, t.X_PJ, t.joint_type, t.axis, t.var_index, V, out)
 
     def link_poses(
         self, q: np.ndarray, head: np.ndarray | None = None, fingers: np.ndarray | None = None

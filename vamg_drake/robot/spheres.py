@@ -28,7 +28,7 @@ from pydrake.systems.framework import DiagramBuilder
 from scipy.spatial.transform import Rotation
 
 from vamg_drake.robot import kinematics, layout
-from vamg_drake.robot.kinematics import FetchKinematics, _parse_origin
+from vamg_drake.robot.kinematics import FetchKinematics, _parse_origin, link_transforms
 
 SPHERES_YAML = kinematics.MODELS_DIR / "fetch" / "spheres.yaml"
 FINGER_LINKS = ("l_gripper_finger_link", "r_gripper_finger_link")
@@ -97,12 +97,28 @@ class SphereModel:
         )
         return SphereModel(link_names, link_index, center, radius, pairs, is_gripper, is_head, body)
 
+    @functools.cached_property
+    def joint_types(self) -> np.ndarray:
+        """The tree's joint types masked to the links that carry spheres (and
+        their ancestors): what `sphere_centres` needs computed."""
+        return FetchKinematics.instance().tree.subtree_joint_types(self.link_index)
+
     def world_spheres(
         self, q: np.ndarray, head: np.ndarray | None = None, link_poses: np.ndarray | None = None
     ) -> np.ndarray:
-        """Sphere centres p_WS (B, S, 3) for q (B, 11) or (11,) -> (S, 3)."""
-        X = link_poses if link_poses is not None else FetchKinematics.instance().link_poses(q, head)
-        out = _transform_spheres(X, self.link_index, self.center_L)
+        """Sphere centres p_WS (B, S, 3) for q (B, 11) or (11,) -> (S, 3);
+        from `link_poses` (B, L, 4, 4) when the caller has them already."""
+        if link_poses is not None:
+            X = np.ascontiguousarray(link_poses, dtype=float)
+            out = np.empty((X.shape[0], self.num_spheres, 3))
+            _sphere_centres_from_poses(X, self.link_index, self.center_L, out)
+        else:
+            t = FetchKinematics.instance().tree
+            V = kinematics.extend_configuration(q, head)
+            out = np.empty((V.shape[0], self.num_spheres, 3))
+            scratch = np.empty((t.parent.shape[0], 3, 4))
+            sphere_centres(t.parent, t.X_PJ, self.joint_types, t.axis, t.var_index, V,
+                           self.link_index, self.center_L, scratch, out)
         return out[0] if np.ndim(q) == 1 else out
 
     def self_collision_free(self, q: np.ndarray, margin: float = 0.0) -> np.ndarray:
@@ -166,15 +182,31 @@ BODY_LINKS = (
 
 
 @numba.njit(cache=True)
-def _transform_spheres(X, link_index, center_L):
-    B = X.shape[0]
-    S = link_index.shape[0]
-    out = np.empty((B, S, 3))
-    for b in range(B):
-        for s in range(S):
-            T = X[b, link_index[s]]
-            for r in range(3):
-                out[b, s, r] = T[r, 0] * center_L[s, 0] + T[r, 1] * center_L[s, 1] + T[r, 2] * center_L[s, 2] + T[r, 3]
+def sphere_centres_into(T, link_index, center_L, C):
+    """C[s] = X_W(link_index[s]) @ center_L[s]: the world centres (S, 3) of the
+    spheres from the link poses T (L, 3 or 4, 4) of `link_transforms`."""
+    for s in range(link_index.shape[0]):
+        li = link_index[s]
+        px, py, pz = center_L[s, 0], center_L[s, 1], center_L[s, 2]
+        C[s, 0] = T[li, 0, 0] * px + T[li, 0, 1] * py + T[li, 0, 2] * pz + T[li, 0, 3]
+        C[s, 1] = T[li, 1, 0] * px + T[li, 1, 1] * py + T[li, 1, 2] * pz + T[li, 1, 3]
+        C[s, 2] = T[li, 2, 0] * px + T[li, 2, 1] * py + T[li, 2, 2] * pz + T[li, 2, 3]
+
+
+@numba.njit(cache=True)
+def sphere_centres(parent, X_PJ, joint_type, axis, var_index, V, link_index, center_L, T, out):
+    """out[b] (S, 3) = the sphere centres for each extended configuration
+    V[b]; T (L, 3, 4) is the caller's scratch for the link poses."""
+    for b in range(V.shape[0]):
+        link_transforms(parent, X_PJ, joint_type, axis, var_index, V[b], T)
+        sphere_centres_into(T, link_index, center_L, out[b])
+    return out
+
+
+@numba.njit(cache=True)
+def _sphere_centres_from_poses(X, link_index, center_L, out):
+    for b in range(X.shape[0]):
+        sphere_centres_into(X[b], link_index, center_L, out[b])
     return out
 
 
