@@ -41,9 +41,9 @@ import math
 import numba
 import numpy as np
 
-from vamg_drake.robot import layout
-from vamg_drake.robot.kinematics import FetchKinematics
-from vamg_drake.robot.spheres import SphereModel
+from vamg_drake.robot import kinematics, layout
+from vamg_drake.robot.kinematics import DEFAULT_FINGER, NX, FetchKinematics, link_transforms
+from vamg_drake.robot.spheres import SphereModel, sphere_centres, sphere_centres_into
 from vamg_drake.world.primitives import WorldBox, WorldCylinder
 
 SQRT3 = math.sqrt(3.0)
@@ -398,64 +398,28 @@ def primitive_distances(points: np.ndarray, env: CollisionEnvironment) -> np.nda
 # ----------------------------------------------------------------------------
 
 
+@numba.njit(cache=True, inline="always")
+def _checked_link_transforms(Q, b, data):
+    """The link poses data[1] and sphere centres data[2] of configuration
+    Q[b], through the extended configuration data[6] (head and fingers set)."""
+    V, T, C = data[6], data[1], data[2]
+    for j in range(Q.shape[1]):
+        V[j] = Q[b, j]
+    link_transforms(data[7], data[8], data[9], data[10], data[11], V, T)
+    sphere_centres_into(T, data[12], data[13], C)
+
+
 @numba.njit(cache=True)
-def _link_transforms(Q, b, head, parent, X_PJ, joint_type, axis, var_index, T):
-    """T[i] (3x4) = X_W(link i) for configuration q (11,) and head (2,);
-    links with joint_type -1 are skipped (see `CollisionChecker._fk_joint_type`)."""
-    L = parent.shape[0]
-    nq = Q.shape[1]
-    for i in range(L):
-        if joint_type[i] < 0:
-            continue
-        k = var_index[i]
-        # joint motion M (rotation R, translation t)
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
-        t0, t1, t2 = 0.0, 0.0, 0.0
-        if k >= 0:
-            if k < nq:
-                v = Q[b, k]
-            elif k < nq + 2:
-                v = head[k - nq]
-            else:
-                v = 0.05  # fingers open (the sphere model covers the gripper)
-            ax, ay, az = axis[i, 0], axis[i, 1], axis[i, 2]
-            if joint_type[i] == 1:
-                c = math.cos(v)
-                s = math.sin(v)
-                tt = 1.0 - c
-                r00 = tt * ax * ax + c
-                r01 = tt * ax * ay - s * az
-                r02 = tt * ax * az + s * ay
-                r10 = tt * ax * ay + s * az
-                r11 = tt * ay * ay + c
-                r12 = tt * ay * az - s * ax
-                r20 = tt * ax * az - s * ay
-                r21 = tt * ay * az + s * ax
-                r22 = tt * az * az + c
-            elif joint_type[i] == 2:
-                t0, t1, t2 = v * ax, v * ay, v * az
-        # A = X_WP @ X_PJ (3x4)
-        p = parent[i]
-        # Row by row (no array views: they cost reference counting):
-        # A = X_WP @ X_PJ, then T[i] = A @ M.
-        for a in range(3):
-            if p < 0:
-                a0, a1, a2, a3 = X_PJ[i, a, 0], X_PJ[i, a, 1], X_PJ[i, a, 2], X_PJ[i, a, 3]
-            else:
-                w0, w1, w2, w3 = T[p, a, 0], T[p, a, 1], T[p, a, 2], T[p, a, 3]
-                a0 = w0 * X_PJ[i, 0, 0] + w1 * X_PJ[i, 1, 0] + w2 * X_PJ[i, 2, 0]
-                a1 = w0 * X_PJ[i, 0, 1] + w1 * X_PJ[i, 1, 1] + w2 * X_PJ[i, 2, 1]
-                a2 = w0 * X_PJ[i, 0, 2] + w1 * X_PJ[i, 1, 2] + w2 * X_PJ[i, 2, 2]
-                a3 = w0 * X_PJ[i, 0, 3] + w1 * X_PJ[i, 1, 3] + w2 * X_PJ[i, 2, 3] + w3
-            if joint_type[i] == 1:
-                T[i, a, 0] = a0 * r00 + a1 * r10 + a2 * r20
-                T[i, a, 1] = a0 * r01 + a1 * r11 + a2 * r21
-                T[i, a, 2] = a0 * r02 + a1 * r12 + a2 * r22
-            else:  # no rotation
-                T[i, a, 0] = a0
-                T[i, a, 1] = a1
-                T[i, a, 2] = a2
-            T[i, a, 3] = a0 * t0 + a1 * t1 + a2 * t2 + a3
+def _extended_scratch(nq, head):
+    """An extended configuration (NX,) with the head at `head` (2,) and the
+    fingers open (the sphere model covers the gripper at any opening); the
+    first nq entries are the caller's."""
+    V = np.zeros(NX)
+    V[nq] = head[0]
+    V[nq + 1] = head[1]
+    for k in range(nq + 2, NX):
+        V[k] = DEFAULT_FINGER
+    return V
 
 
 @numba.njit(cache=True)
@@ -690,21 +654,14 @@ def _config_free(Q, b, data):
     robot's inflated spheres are tested, each first against the sphere's own
     box.
     """
-    T, C = data[1], data[2]
-    sph_link, sph_c, q_lo, q_hi = data[12], data[13], data[17], data[18]
+    q_lo, q_hi = data[17], data[18]
     for j in range(Q.shape[1]):
         if not (Q[b, j] >= q_lo[j] and Q[b, j] <= q_hi[j]):  # also rejects NaN
             return False
-    _link_transforms(Q, b, data[6], data[7], data[8], data[9], data[10], data[11], T)
-    for s in range(sph_link.shape[0]):
-        li = sph_link[s]
-        px, py, pz = sph_c[s, 0], sph_c[s, 1], sph_c[s, 2]
-        C[s, 0] = T[li, 0, 0] * px + T[li, 0, 1] * py + T[li, 0, 2] * pz + T[li, 0, 3]
-        C[s, 1] = T[li, 1, 0] * px + T[li, 1, 1] * py + T[li, 1, 2] * pz + T[li, 1, 3]
-        C[s, 2] = T[li, 2, 0] * px + T[li, 2, 1] * py + T[li, 2, 2] * pz + T[li, 2, 3]
-    if not _env_free(C, data):
+    _checked_link_transforms(Q, b, data)
+    if not _env_free(data[2], data):
         return False
-    return _self_free(T, C, data)
+    return _self_free(data[1], data[2], data)
 
 
 @numba.njit(cache=True)
@@ -725,7 +682,8 @@ def _batch_free(Q, head, parent, X_PJ, joint_type, axis, var_index,
     _env_aabbs(box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, env_aabb)
     near = np.empty(env_aabb.shape[0], dtype=np.int64)
     LB = np.empty((parent.shape[0], 3))
-    data = (Q, T, C, PW, env_aabb, near, head, parent, X_PJ, joint_type, axis, var_index,
+    V = _extended_scratch(Q.shape[1], head)
+    data = (Q, T, C, PW, env_aabb, near, V, parent, X_PJ, joint_type, axis, var_index,
             sph_link, sph_c, sph_r, sph_rs, pairs, q_lo, q_hi,
             has_field, dist, origin, h, margin, pts, cell_keys, cell_start, tgt_c, tgt_r, sph_grip,
             box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
@@ -748,17 +706,13 @@ def _held_spheres(data, C0):
     torso + arm data[0][0, 3:] and returns whether that torso + arm is inside
     its limits and free of self-collision (both independent of the base)."""
     Q, T = data[0], data[1]
-    sph_link, sph_c, q_lo, q_hi = data[12], data[13], data[17], data[18]
+    q_lo, q_hi = data[17], data[18]
     Q[0, 0] = Q[0, 1] = Q[0, 2] = 0.0
     for j in range(3, Q.shape[1]):
         if not (Q[0, j] >= q_lo[j] and Q[0, j] <= q_hi[j]):
             return False
-    _link_transforms(Q, 0, data[6], data[7], data[8], data[9], data[10], data[11], T)
-    for s in range(sph_link.shape[0]):
-        li = sph_link[s]
-        px, py, pz = sph_c[s, 0], sph_c[s, 1], sph_c[s, 2]
-        for a in range(3):
-            C0[s, a] = T[li, a, 0] * px + T[li, a, 1] * py + T[li, a, 2] * pz + T[li, a, 3]
+    _checked_link_transforms(Q, 0, data)
+    C0[:] = data[2]
     return _self_free(T, C0, data)
 
 
@@ -793,19 +747,6 @@ def _drive_free(poses, data, out):
         return
     for m in range(poses.shape[0]):
         out[m] = _held_pose_free(poses[m, 0], poses[m, 1], poses[m, 2], data)
-
-
-@numba.njit(cache=True)
-def _sphere_centers(Q, head, parent, X_PJ, joint_type, axis, var_index, sph_link, sph_c, out):
-    T = np.empty((parent.shape[0], 3, 4))
-    for b in range(Q.shape[0]):
-        _link_transforms(Q, b, head, parent, X_PJ, joint_type, axis, var_index, T)
-        for s in range(sph_link.shape[0]):
-            li = sph_link[s]
-            for a in range(3):
-                out[b, s, a] = (T[li, a, 0] * sph_c[s, 0] + T[li, a, 1] * sph_c[s, 1]
-                                + T[li, a, 2] * sph_c[s, 2] + T[li, a, 3])
-    return out
 
 
 @numba.njit(cache=True, inline="always")
@@ -882,10 +823,13 @@ def _min_self_gaps(Q, head, parent, X_PJ, joint_type, axis, var_index, sph_link,
     """Smallest gaps over configurations Q (B, 11) of the unpadded sphere pairs
     (pair_a[n], pair_b[n]) and of spheres body_s[n] vs body primitives body_k[n]."""
     T = np.empty((parent.shape[0], 3, 4))
+    V = _extended_scratch(Q.shape[1], head)
     gap_pair[:] = np.inf
     gap_body[:] = np.inf
     for b in range(Q.shape[0]):
-        _link_transforms(Q, b, head, parent, X_PJ, joint_type, axis, var_index, T)
+        for j in range(Q.shape[1]):
+            V[j] = Q[b, j]
+        link_transforms(parent, X_PJ, joint_type, axis, var_index, V, T)
         for n in range(pair_a.shape[0] + body_s.shape[0]):
             s = pair_a[n] if n < pair_a.shape[0] else body_s[n - pair_a.shape[0]]
             li = sph_link[s]
@@ -1174,7 +1118,8 @@ class CollisionChecker:
         self._self_cull = self._self_culling(self.sph_rs)
         self._self_cull_bare = self._self_culling(self.base_radius)  # for `unpadded`
         self.lever = self._joint_levers()
-        self._fk_joint_type = self._needed_links()
+        # Forward kinematics only of the links with spheres or body primitives.
+        self._fk_joint_type = tree.subtree_joint_types(np.concatenate([self.sph_link, self._body[0]]))
         self._planar = None
         self._planar_base()
         self.set_environment(env)
@@ -1234,19 +1179,6 @@ class CollisionChecker:
         other.sph_rs = self.base_radius.copy()
         other._self_cull = self._self_cull_bare
         return other
-
-    def _needed_links(self) -> np.ndarray:
-        """The tree's joint types for the checks' forward kinematics, -1 for
-        links that carry no sphere and no body primitive and have no
-        descendant that does (e.g. the fingers, sensor frames): skipped."""
-        t = self.tree
-        needed = np.zeros(t.parent.shape[0], bool)
-        needed[self.sph_link] = True
-        needed[self._body[0]] = True
-        for i in range(t.parent.shape[0] - 1, -1, -1):  # parents come before children
-            if needed[i] and t.parent[i] >= 0:
-                needed[t.parent[i]] = True
-        return np.ascontiguousarray(np.where(needed, t.joint_type, -1), dtype=t.joint_type.dtype)
 
     def _group_self_tests(self) -> None:
         """Sorts the sphere pairs by their links and the body tests by
@@ -1314,7 +1246,8 @@ class CollisionChecker:
         env_aabb = np.empty((e.box_p.shape[0] + e.cyl_p.shape[0], 6))
         _env_aabbs(e.box_p, e.box_R, e.box_half, e.cyl_p, e.cyl_R, e.cyl_radius, e.cyl_half_length, env_aabb)
         near = np.empty(env_aabb.shape[0], dtype=np.int64)
-        data = (Q, T, C, PW, env_aabb, near) + tuple(self._args()) + (np.empty((self.tree.parent.shape[0], 3)),)
+        V = kinematics.extend_configuration(Q, self.head)[0]
+        data = (Q, T, C, PW, env_aabb, near, V) + tuple(self._args())[1:] + (np.empty((self.tree.parent.shape[0], 3)),)
         C0 = np.empty_like(C)
         flags = np.array([False, self._planar_base()])
         data += (C0, flags)
@@ -1368,11 +1301,11 @@ class CollisionChecker:
 
     def sphere_centers(self, Q: np.ndarray) -> np.ndarray:
         """World sphere centres (B, S, 3)."""
-        Q = self._as_batch(Q)
-        out = np.empty((Q.shape[0], self.sph_link.shape[0], 3))
+        V = kinematics.extend_configuration(self._as_batch(Q), self.head)
+        out = np.empty((V.shape[0], self.sph_link.shape[0], 3))
         t = self.tree
-        return _sphere_centers(Q, self.head, t.parent, t.X_PJ, t.joint_type, t.axis,
-                               t.var_index, self.sph_link, self.sph_c, out)
+        return sphere_centres(t.parent, t.X_PJ, self._fk_joint_type, t.axis, t.var_index, V,
+                              self.sph_link, self.sph_c, np.empty((t.parent.shape[0], 3, 4)), out)
 
     def _joint_levers(self) -> np.ndarray:
         """Per-coordinate bound on sphere-centre motion per unit joint motion.

@@ -2,23 +2,32 @@
 
 The chain runs from ``base_link`` (frame B) to the grasp frame G
 (``gripper_link``) through the 8 joints ``q[TORSO_ARM]`` (torso lift and the 7
-arm joints). Its joint origins and axes come from the same parsed URDF as
-``FetchKinematics`` (`vamg_drake.robot.kinematics.parse_kinematic_tree`).
-Kinematic maps and the fast IK need the pose *and* the geometric Jacobian for
-millions of configurations, hence this dedicated Numba kernel.
+arm joints). It is the robot's kinematic tree
+(`vamg_drake.robot.kinematics.parse_kinematic_tree`) masked to the path to G
+and evaluated by the robot's one kinematics kernel
+(`vamg_drake.robot.kinematics.link_transforms`, `tip_jacobian`) with the base
+at the origin, where B is the world frame. Kinematic maps and the fast IK need
+the pose *and* the geometric Jacobian for millions of configurations.
 """
 
 from __future__ import annotations
 
 import dataclasses as dc
 import functools
-import math
 
 import numba
 import numpy as np
 
 from vamg_drake.robot import layout
-from vamg_drake.robot.kinematics import GRASP_FRAME, JOINT_FIXED, JOINT_REVOLUTE, KinematicTree, parse_kinematic_tree
+from vamg_drake.robot.kinematics import (
+    GRASP_FRAME,
+    JOINT_FIXED,
+    NX,
+    KinematicTree,
+    link_transforms,
+    parse_kinematic_tree,
+    tip_jacobian,
+)
 
 #: Number of chain joints (torso + 7 arm).
 N_CHAIN = 8
@@ -29,18 +38,22 @@ CHAIN_CONTINUOUS = layout.IS_CONTINUOUS[layout.TORSO_ARM]
 
 @dc.dataclass(frozen=True)
 class ArmChain:
-    """Flat arrays of the chain from base_link to the grasp frame.
+    """The kinematic tree masked to the chain from base_link to the grasp frame.
 
     Attributes:
-        X_PJ: (n, 4, 4) joint frame in the previous chain link's frame.
-        joint_type: (n,) JOINT_FIXED / JOINT_REVOLUTE / JOINT_PRISMATIC.
-        axis: (n, 3) joint axis in the joint frame.
-        column: (n,) index into the 8 chain variables, -1 for fixed joints.
+        parent, X_PJ, axis, var_index: the tree's arrays (`KinematicTree`).
+        joint_type: the tree's joint types, JOINT_SKIPPED off the path to the tip.
+        tip: index of the grasp frame's link.
+        column: (NX,) chain column (0..7) of each extended-configuration
+            variable, -1 for the variables that are not torso/arm joints.
     """
 
+    parent: np.ndarray
     X_PJ: np.ndarray
     joint_type: np.ndarray
     axis: np.ndarray
+    var_index: np.ndarray
+    tip: int
     column: np.ndarray
 
     @staticmethod
@@ -51,30 +64,33 @@ class ArmChain:
 
     @staticmethod
     def from_tree(tree: KinematicTree, tip: str = GRASP_FRAME, root: str = "base_link") -> "ArmChain":
-        path = []
-        i = tree.index(tip)
+        tip_index = tree.index(tip)
         root_index = tree.index(root)
+        path = []
+        i = tip_index
         while i != root_index:
             if i < 0:
                 raise ValueError(f"'{tip}' is not below '{root}' in the kinematic tree")
             path.append(i)
             i = int(tree.parent[i])
-        path.reverse()
-        column = np.full(len(path), -1, dtype=np.int64)
-        for c, i in enumerate(path):
-            if tree.joint_type[i] != JOINT_FIXED:
-                v = int(tree.var_index[i])
-                if not layout.TORSO <= v < layout.NQ:
-                    raise ValueError(f"chain joint of link '{tree.link_names[i]}' is not a torso/arm joint")
-                column[c] = v - layout.TORSO
-        if sorted(column[column >= 0].tolist()) != list(range(N_CHAIN)):
+        moving = sorted(int(tree.var_index[i]) for i in path if tree.joint_type[i] != JOINT_FIXED)
+        if moving != list(range(layout.TORSO, layout.NQ)):
             raise ValueError("the chain base_link -> gripper must contain exactly the torso and 7 arm joints")
-        return ArmChain(
-            np.ascontiguousarray(tree.X_PJ[path]),
-            np.ascontiguousarray(tree.joint_type[path]),
-            np.ascontiguousarray(tree.axis[path]),
-            column,
-        )
+        joint_type = tree.subtree_joint_types([tip_index])
+        # The chain is expressed in B by evaluating the tree with the base at
+        # the origin: that needs X_W(root) = identity there.
+        T = np.empty((tree.parent.shape[0], 3, 4))
+        link_transforms(tree.parent, tree.X_PJ, joint_type, tree.axis, tree.var_index, np.zeros(NX), T)
+        if not np.array_equal(T[root_index], np.eye(4)[:3]):
+            raise ValueError(f"'{root}' is not at the world origin when the base coordinates are zero")
+        column = np.full(NX, -1, dtype=np.int64)
+        column[layout.TORSO:layout.NQ] = np.arange(N_CHAIN)
+        return ArmChain(tree.parent, tree.X_PJ, joint_type, tree.axis, tree.var_index, tip_index, column)
+
+    @property
+    def arrays(self) -> tuple:
+        """The chain's arrays as the compiled functions take them."""
+        return (self.parent, self.X_PJ, self.joint_type, self.axis, self.var_index, self.tip, self.column)
 
     def forward(self, q_chain: np.ndarray, with_jacobian: bool = False):
         """X_BG (B, 4, 4) [and the geometric Jacobian J (B, 6, 8), rows (v, w) in B].
@@ -87,7 +103,7 @@ class ArmChain:
             raise ValueError(f"q_chain must have {N_CHAIN} columns, got shape {q_chain.shape}")
         X = np.empty((q_chain.shape[0], 4, 4))
         J = np.empty((q_chain.shape[0], 6, N_CHAIN))
-        chain_fk_jacobian(self.X_PJ, self.joint_type, self.axis, self.column, q_chain, X, J, with_jacobian)
+        chain_fk_jacobian(*self.arrays, q_chain, X, J, with_jacobian)
         return (X, J) if with_jacobian else X
 
 
@@ -103,100 +119,38 @@ def base_poses(q: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _chain_scratch(n):
-    """Scratch buffers for `_chain_one`: R (3,3), p (3,), tmp (3,3), origins and axes (n,3)."""
-    return np.empty((3, 3)), np.empty(3), np.empty((3, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+def chain_scratch(parent):
+    """Scratch for `chain_pose`: the extended configuration v (NX,) (zero
+    base, head and fingers) and the link poses T (L, 3, 4)."""
+    return np.zeros(NX), np.empty((parent.shape[0], 3, 4))
 
 
 @numba.njit(cache=True)
-def _chain_one(X_PJ, joint_type, axis, column, q, X_out, J_out, with_jacobian, R, p, origins, axes, tmp):
-    """FK (and Jacobian) of one configuration; R (3,3), p (3,), origins/axes (n,3), tmp (3,3) are scratch."""
-    n = X_PJ.shape[0]
-    for r in range(3):
-        p[r] = 0.0
-        for c in range(3):
-            R[r, c] = 1.0 if r == c else 0.0
-    for i in range(n):
-        # T <- T @ X_PJ[i]
-        for r in range(3):
-            p[r] += R[r, 0] * X_PJ[i, 0, 3] + R[r, 1] * X_PJ[i, 1, 3] + R[r, 2] * X_PJ[i, 2, 3]
-        for r in range(3):
-            for c in range(3):
-                tmp[r, c] = R[r, 0] * X_PJ[i, 0, c] + R[r, 1] * X_PJ[i, 1, c] + R[r, 2] * X_PJ[i, 2, c]
-        for r in range(3):
-            for c in range(3):
-                R[r, c] = tmp[r, c]
-        c_idx = column[i]
-        if c_idx < 0:
-            continue
-        ax, ay, az = axis[i, 0], axis[i, 1], axis[i, 2]
-        wx = R[0, 0] * ax + R[0, 1] * ay + R[0, 2] * az
-        wy = R[1, 0] * ax + R[1, 1] * ay + R[1, 2] * az
-        wz = R[2, 0] * ax + R[2, 1] * ay + R[2, 2] * az
-        origins[i, 0], origins[i, 1], origins[i, 2] = p[0], p[1], p[2]
-        axes[i, 0], axes[i, 1], axes[i, 2] = wx, wy, wz
-        v = q[c_idx]
-        if joint_type[i] == JOINT_REVOLUTE:
-            # Rotation about the world-frame axis w: R <- Rot(w, v) @ R (same as R @ Rot(a, v)).
-            cv = math.cos(v)
-            sv = math.sin(v)
-            t = 1.0 - cv
-            m00 = t * wx * wx + cv
-            m01 = t * wx * wy - sv * wz
-            m02 = t * wx * wz + sv * wy
-            m10 = t * wx * wy + sv * wz
-            m11 = t * wy * wy + cv
-            m12 = t * wy * wz - sv * wx
-            m20 = t * wx * wz - sv * wy
-            m21 = t * wy * wz + sv * wx
-            m22 = t * wz * wz + cv
-            for c in range(3):
-                a0, a1, a2 = R[0, c], R[1, c], R[2, c]
-                R[0, c] = m00 * a0 + m01 * a1 + m02 * a2
-                R[1, c] = m10 * a0 + m11 * a1 + m12 * a2
-                R[2, c] = m20 * a0 + m21 * a1 + m22 * a2
-        else:
-            p[0] += v * wx
-            p[1] += v * wy
-            p[2] += v * wz
-    for r in range(3):
-        for c in range(3):
-            X_out[r, c] = R[r, c]
-        X_out[r, 3] = p[r]
-        X_out[3, r] = 0.0
-    X_out[3, 3] = 1.0
+def chain_pose(parent, X_PJ, joint_type, axis, var_index, tip, column, q, v, T, J, with_jacobian):
+    """FK of the chain at q (8,): X_BG is T[tip] afterwards (3, 4); J (6, 8)
+    the Jacobian when `with_jacobian`. v, T come from `chain_scratch`."""
+    for k in range(column.shape[0]):
+        if column[k] >= 0:
+            v[k] = q[column[k]]
+    link_transforms(parent, X_PJ, joint_type, axis, var_index, v, T)
     if with_jacobian:
-        for i in range(n):
-            c_idx = column[i]
-            if c_idx < 0:
-                continue
-            zx, zy, zz = axes[i, 0], axes[i, 1], axes[i, 2]
-            if joint_type[i] == JOINT_REVOLUTE:
-                rx = p[0] - origins[i, 0]
-                ry = p[1] - origins[i, 1]
-                rz = p[2] - origins[i, 2]
-                J_out[0, c_idx] = zy * rz - zz * ry
-                J_out[1, c_idx] = zz * rx - zx * rz
-                J_out[2, c_idx] = zx * ry - zy * rx
-                J_out[3, c_idx] = zx
-                J_out[4, c_idx] = zy
-                J_out[5, c_idx] = zz
-            else:
-                J_out[0, c_idx] = zx
-                J_out[1, c_idx] = zy
-                J_out[2, c_idx] = zz
-                J_out[3, c_idx] = 0.0
-                J_out[4, c_idx] = 0.0
-                J_out[5, c_idx] = 0.0
+        tip_jacobian(parent, joint_type, axis, var_index, T, tip, column, J)
 
 
 @numba.njit(cache=True, parallel=True)
-def chain_fk_jacobian(X_PJ, joint_type, axis, column, q_chain, X_out, J_out, with_jacobian):
+def chain_fk_jacobian(parent, X_PJ, joint_type, axis, var_index, tip, column, q_chain, X_out, J_out, with_jacobian):
     """Batched chain FK (and Jacobian) into preallocated X_out (B,4,4), J_out (B,6,8)."""
     B = q_chain.shape[0]
-    n = X_PJ.shape[0]
     block = 4096
     for k in numba.prange((B + block - 1) // block):
-        R, p, tmp, origins, axes = _chain_scratch(n)
+        v, T = chain_scratch(parent)
         for b in range(k * block, min(B, (k + 1) * block)):
-            _chain_one(X_PJ, joint_type, axis, column, q_chain[b], X_out[b], J_out[b], with_jacobian, R, p, origins, axes, tmp)
+            chain_pose(parent, X_PJ, joint_type, axis, var_index, tip, column, q_chain[b], v, T, J_out[b],
+                       with_jacobian)
+            for r in range(3):
+                for c in range(4):
+                    X_out[b, r, c] = T[tip, r, c]
+            X_out[b, 3, 0] = 0.0
+            X_out[b, 3, 1] = 0.0
+            X_out[b, 3, 2] = 0.0
+            X_out[b, 3, 3] = 1.0

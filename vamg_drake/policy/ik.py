@@ -26,7 +26,7 @@ from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
 from pydrake.solvers import Solve
 from pydrake.systems.framework import DiagramBuilder
 
-from vamg_drake.policy.arm_chain import CHAIN_LOWER, CHAIN_UPPER, N_CHAIN, ArmChain, _chain_one, _chain_scratch, base_poses
+from vamg_drake.policy.arm_chain import CHAIN_LOWER, CHAIN_UPPER, N_CHAIN, ArmChain, base_poses, chain_pose, chain_scratch
 from vamg_drake.robot import layout
 from vamg_drake.robot.kinematics import GRASP_FRAME, fetch_urdf_path
 
@@ -53,17 +53,17 @@ class IkConfig:
 
 
 @numba.njit(cache=True)
-def _dls_one(X_PJ, joint_type, axis, column, target, q0, active, lower, upper, pos_tol, ang_tol,
+def _dls_one(chain, target, q0, active, lower, upper, pos_tol, ang_tol,
              max_iter, damping, max_step, q_out):
-    n = X_PJ.shape[0]
-    R, p, tmp, origins, axes = _chain_scratch(n)
-    X = np.empty((4, 4))
+    """Damped least squares from q0 towards X_BG = target; `chain` is `ArmChain.arrays`."""
+    V, T = chain_scratch(chain[0])
+    X = T[chain[5]]  # X_BG (3, 4), updated by `chain_pose`
     J = np.empty((6, N_CHAIN))
     e = np.empty(6)
     Re = np.empty((3, 3))
     q = q0.copy()
     for it in range(max_iter + 1):
-        _chain_one(X_PJ, joint_type, axis, column, q, X, J, True, R, p, origins, axes, tmp)
+        chain_pose(*chain, q, V, T, J, True)
         for r in range(3):
             e[r] = target[r, 3] - X[r, 3]
         # Rotation error: log(R_t R^T) in the base frame.
@@ -113,14 +113,14 @@ def _dls_one(X_PJ, joint_type, axis, column, target, q0, active, lower, upper, p
 
 
 @numba.njit(cache=True, parallel=True)
-def _dls_batch(X_PJ, joint_type, axis, column, targets, seeds, restarts, active, lower, upper,
+def _dls_batch(chain, targets, seeds, restarts, active, lower, upper,
                pos_tol, ang_tol, max_iter, damping, max_step, q_out, ok_out):
     for k in numba.prange(targets.shape[0]):
-        ok_out[k] = _dls_one(X_PJ, joint_type, axis, column, targets[k], seeds[k], active, lower, upper,
+        ok_out[k] = _dls_one(chain, targets[k], seeds[k], active, lower, upper,
                              pos_tol, ang_tol, max_iter, damping, max_step, q_out[k])
         r = 0
         while not ok_out[k] and r < restarts.shape[1]:
-            ok_out[k] = _dls_one(X_PJ, joint_type, axis, column, targets[k], restarts[k, r], active, lower, upper,
+            ok_out[k] = _dls_one(chain, targets[k], restarts[k, r], active, lower, upper,
                                  pos_tol, ang_tol, max_iter, damping, max_step, q_out[k])
             r += 1
 
@@ -132,7 +132,8 @@ class FastIk:
         self.config = config or IkConfig()
         self.config.__post_init__()  # YAML-loaded configs skip __post_init__
         self.chain = chain or ArmChain.load()
-        self._rng = np.random.default_rng(self.config.seed)
+        #: The restarts' generator; callers that keep their state in a Context save and restore its state.
+        self.rng = np.random.default_rng(self.config.seed)
 
     def solve_chain(
         self, X_BG: np.ndarray, q_seed_chain: np.ndarray, torso_fixed: bool
@@ -151,7 +152,7 @@ class FastIk:
         X_BG = np.ascontiguousarray(np.reshape(X_BG, (-1, 4, 4)), dtype=float)
         K = X_BG.shape[0]
         seeds = np.ascontiguousarray(np.broadcast_to(np.asarray(q_seed_chain, float), (K, N_CHAIN)))
-        restarts = self._rng.uniform(layout.SAMPLE_LOWER[layout.TORSO_ARM], layout.SAMPLE_UPPER[layout.TORSO_ARM],
+        restarts = self.rng.uniform(layout.SAMPLE_LOWER[layout.TORSO_ARM], layout.SAMPLE_UPPER[layout.TORSO_ARM],
                                      (K, cfg.restarts, N_CHAIN))
         active = np.ones(N_CHAIN, dtype=np.bool_)
         if torso_fixed:
@@ -160,7 +161,7 @@ class FastIk:
         q = np.empty((K, N_CHAIN))
         ok = np.zeros(K, dtype=np.bool_)
         ch = self.chain
-        _dls_batch(ch.X_PJ, ch.joint_type, ch.axis, ch.column, X_BG, seeds, restarts, active,
+        _dls_batch(ch.arrays, X_BG, seeds, restarts, active,
                    CHAIN_LOWER, CHAIN_UPPER, cfg.position_tolerance, cfg.angle_tolerance,
                    cfg.max_iterations, cfg.damping, cfg.max_step, q, ok)
         q = layout.wrap_configuration(np.concatenate([np.zeros((K, 3)), q], axis=1))[:, layout.TORSO_ARM]

@@ -41,13 +41,7 @@ import numpy as np
 from scipy import ndimage
 from tqdm import tqdm
 
-from vamg_drake.policy.arm_chain import (
-    CHAIN_CONTINUOUS,
-    N_CHAIN,
-    ArmChain,
-    _chain_one,
-    _chain_scratch,
-)
+from vamg_drake.policy.arm_chain import CHAIN_CONTINUOUS, N_CHAIN, ArmChain
 from vamg_drake.robot import layout
 from vamg_drake.robot.kinematics import model_hash
 
@@ -150,43 +144,45 @@ def _pose_keys(X, lower, resolution, shape, keys):
 
 
 @numba.njit(cache=True, parallel=True)
-def _reach_batch(X_PJ, joint_type, axis, column, q, lower, resolution, shape, keys, manip):
-    n = X_PJ.shape[0]
-    B = q.shape[0]
-    block = 4096
-    for k in numba.prange((B + block - 1) // block):
-        R, p, tmp, origins, axes = _chain_scratch(n)
-        X = np.empty((4, 4))
-        J = np.empty((6, N_CHAIN))
-        for b in range(k * block, min(B, (k + 1) * block)):
-            _chain_one(X_PJ, joint_type, axis, column, q[b], X, J, True, R, p, origins, axes, tmp)
-            c = _position_cell(X[0, 3], X[1, 3], X[2, 3], lower, resolution, shape)
-            if c < 0:
-                keys[b] = -1
-                manip[b] = 0.0
-                continue
-            keys[b] = c * N_ORIENTATION + _orientation_cell(X[:3, :3])
-            d = np.linalg.det(J @ J.T)
-            manip[b] = math.sqrt(d) if d > 0.0 else 0.0
+def _manipulability(J, out):
+    """out[b] = Yoshikawa's sqrt(det(J J^T)) of the Jacobians J (B, 6, 8)."""
+    for b in numba.prange(J.shape[0]):
+        d = np.linalg.det(J[b] @ J[b].T)
+        out[b] = math.sqrt(d) if d > 0.0 else 0.0
 
 
 @numba.njit(cache=True, parallel=True)
-def _torso_batch(X_PJ, joint_type, axis, column, q, lower, resolution, shape, torso_bin, n_torso, cells):
-    n = X_PJ.shape[0]
-    B = q.shape[0]
-    block = 4096
-    for k in numba.prange((B + block - 1) // block):
-        R, p, tmp, origins, axes = _chain_scratch(n)
-        X = np.empty((4, 4))
-        J = np.empty((6, N_CHAIN))
-        for b in range(k * block, min(B, (k + 1) * block)):
-            _chain_one(X_PJ, joint_type, axis, column, q[b], X, J, False, R, p, origins, axes, tmp)
-            c = _position_cell(X[0, 3], X[1, 3], X[2, 3], lower, resolution, shape)
-            if c < 0:
-                cells[b] = -1
-            else:
-                h = min(n_torso - 1, int(q[b, 0] / torso_bin))
-                cells[b] = c * n_torso + h
+def _torso_cells(X, torso, lower, resolution, shape, torso_bin, n_torso, cells):
+    """cells[b] = end-effector position bin of X[b] x torso bin of torso[b], -1 outside the box."""
+    for b in numba.prange(X.shape[0]):
+        c = _position_cell(X[b, 0, 3], X[b, 1, 3], X[b, 2, 3], lower, resolution, shape)
+        cells[b] = -1 if c < 0 else c * n_torso + min(n_torso - 1, int(torso[b] / torso_bin))
+
+
+#: Configurations pushed through the chain FK at once while building.
+_CHUNK = 1 << 16
+
+
+def _reach_batch(chain: ArmChain, q: np.ndarray, lower: np.ndarray, resolution: float, shape: np.ndarray):
+    """(voxel keys (B,), manipulability (B,)) of the chain configurations q (B, 8)."""
+    keys = np.empty(q.shape[0], dtype=np.int64)
+    manip = np.empty(q.shape[0], dtype=np.float64)
+    for s in range(0, q.shape[0], _CHUNK):
+        X, J = chain.forward(q[s:s + _CHUNK], with_jacobian=True)
+        _pose_keys(X, lower, resolution, shape, keys[s:s + _CHUNK])
+        _manipulability(J, manip[s:s + _CHUNK])
+    return keys, np.where(keys >= 0, manip, 0.0)
+
+
+def _torso_batch(chain: ArmChain, q: np.ndarray, lower: np.ndarray, resolution: float, shape: np.ndarray,
+                 torso_bin: float, n_torso: int) -> np.ndarray:
+    """Torso-height map cells (B,) of the chain configurations q (B, 8), -1 outside the box."""
+    cells = np.empty(q.shape[0], dtype=np.int64)
+    for s in range(0, q.shape[0], _CHUNK):
+        X = chain.forward(q[s:s + _CHUNK])
+        _torso_cells(X, np.ascontiguousarray(q[s:s + _CHUNK, 0]), lower, resolution, shape, torso_bin, n_torso,
+                     cells[s:s + _CHUNK])
+    return cells
 
 
 def _sample_chain(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -356,10 +352,7 @@ class KinematicMaps:
             while done < config.reach_samples:
                 n = min(config.batch, config.reach_samples - done)
                 q = _sample_chain(rng, n)
-                keys = np.empty(n, dtype=np.int64)
-                manip = np.empty(n, dtype=np.float64)
-                _reach_batch(chain.X_PJ, chain.joint_type, chain.axis, chain.column, q, lower,
-                             config.position_resolution, shape6, keys, manip)
+                keys, manip = _reach_batch(chain, q, lower, config.position_resolution, shape6)
                 ok = keys >= 0
                 parts.append(_reduce_keys(keys[ok], np.ones(np.count_nonzero(ok), np.int64), manip[ok]))
                 if len(parts) >= 8:
@@ -382,9 +375,8 @@ class KinematicMaps:
             while done < config.torso_samples:
                 n = min(config.batch, config.torso_samples - done)
                 q = _sample_chain(rng, n)
-                cells = np.empty(n, dtype=np.int64)
-                _torso_batch(chain.X_PJ, chain.joint_type, chain.axis, chain.column, q, lower,
-                             config.torso_position_resolution, np.asarray(shape3, np.int64), config.torso_bin, n_torso, cells)
+                cells = _torso_batch(chain, q, lower, config.torso_position_resolution, np.asarray(shape3, np.int64),
+                                     config.torso_bin, n_torso)
                 counts += np.bincount(cells[cells >= 0], minlength=n_bins)
                 done += n
                 bar.update(n)
