@@ -46,7 +46,8 @@ import time
 
 import numpy as np
 
-from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment, densify
+from vamg_drake.planning.collision_environment import CollisionEnvironment
+from vamg_drake.planning.sphere_collision import SphereCollisionChecker, densify
 from vamg_drake.planning.drake_reference import DrakeCollisionWorld
 from vamg_drake.planning.problems import room_problem
 from vamg_drake.planning.whole_body_planner import PlannerConfig, WholeBodyPlanner
@@ -115,7 +116,7 @@ def main() -> None:
 
     config = PlannerConfig()
     budget_s = args.reference_budget
-    base_checker = CollisionChecker.for_fetch(CollisionEnvironment())
+    base_checker = SphereCollisionChecker.for_fetch(CollisionEnvironment())
     rows = []
     # Warm up the JIT (compiles or loads the cache) outside the timings: a
     # few problems, so that the later stages' kernels (along-path and

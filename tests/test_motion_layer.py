@@ -9,7 +9,8 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
 
 from vamg_drake.perception.raycast_map import PointMapSnapshot
-from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment
+from vamg_drake.planning.collision_environment import CollisionEnvironment
+from vamg_drake.planning.sphere_collision import SphereCollisionChecker
 from vamg_drake.planning.whole_body_planner import PlannerConfig
 from vamg_drake.policy.behaviour_tree import MotionEvent, Phase, SubgoalCommand
 from vamg_drake.robot import layout
@@ -113,7 +114,7 @@ def test_the_target_exempts_the_gripper_only_around_it():
 def test_arm_floor_clearance_sees_the_gripper_on_the_floor():
     """The floor is not in the map: the motion layer measures how low the arm's
     spheres go (the base's own spheres, which reach below the floor, excluded)."""
-    checker = CollisionChecker.for_fetch(CollisionEnvironment())
+    checker = SphereCollisionChecker.for_fetch(CollisionEnvironment())
     q = layout.stow_configuration(0.0, 0.0, 0.0)
     assert arm_floor_clearance(checker, q[None]) > 0.2
     down = q.copy()

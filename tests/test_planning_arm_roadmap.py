@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from vamg_drake.planning.arm_roadmap import ArmRoadmap, ArmRoadmapConfig
-from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment, densify
+from vamg_drake.planning.collision_environment import CollisionEnvironment
+from vamg_drake.planning.sphere_collision import SphereCollisionChecker, densify
 from vamg_drake.planning.whole_body_planner import PlannerConfig, WholeBodyPlanner
 from vamg_drake.robot import layout
 from vamg_drake.world.primitives import WorldBox, rotation_z
@@ -14,7 +15,7 @@ TRAVEL = np.asarray(PlannerConfig().travel_torso_arm, float)
 
 @pytest.fixture(scope="module")
 def checker():
-    return CollisionChecker.for_fetch(CollisionEnvironment())
+    return SphereCollisionChecker.for_fetch(CollisionEnvironment())
 
 
 def _wrapped(x):

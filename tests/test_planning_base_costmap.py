@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from vamg_drake.planning.base_costmap import base_costmap
-from vamg_drake.planning.collision import CollisionEnvironment
+from vamg_drake.planning.collision_environment import CollisionEnvironment
 from vamg_drake.world.primitives import WorldBox, WorldCylinder, footprint_clearance, rotation_from_rpy, rotation_z
 
 CAP = 0.6

@@ -3,10 +3,9 @@
 import numpy as np
 import pytest
 
-from vamg_drake.planning.collision import (
-    CollisionChecker, CollisionCheckerConfig, CollisionEnvironment, DistanceField, bisection_order, densify,
-    support_height,
-)
+from vamg_drake.planning.collision_environment import CollisionEnvironment, support_height
+from vamg_drake.planning.distance_field import DistanceField
+from vamg_drake.planning.sphere_collision import CollisionCheckerConfig, SphereCollisionChecker, bisection_order, densify
 from vamg_drake.planning.problems import furnished_room
 from vamg_drake.robot import layout
 
@@ -38,7 +37,7 @@ def test_distance_field_bound_is_conservative():
 
 def test_map_field_free_implies_exactly_free(room):
     env = CollisionEnvironment.from_primitives(room)
-    exact = CollisionChecker.for_fetch(env, CollisionCheckerConfig(motion_resolution=0.0))
+    exact = SphereCollisionChecker.for_fetch(env, CollisionCheckerConfig(motion_resolution=0.0))
     voxel = exact.with_environment(env.voxelized(0.03))
     Q = _random_configs(np.random.default_rng(1), 3000)
     f_exact, f_voxel = exact.is_free(Q), voxel.is_free(Q)
@@ -49,7 +48,7 @@ def test_map_field_free_implies_exactly_free(room):
 def test_self_collision_matches_sphere_model():
     from vamg_drake.robot.spheres import SphereModel
 
-    checker = CollisionChecker.for_fetch(CollisionEnvironment(),
+    checker = SphereCollisionChecker.for_fetch(CollisionEnvironment(),
                                          CollisionCheckerConfig(motion_resolution=0.0, self_padding=0.0))
     Q = _random_configs(np.random.default_rng(2), 3000)
     expected = SphereModel.load().self_collision_free(Q) & layout.within_limits(Q)
@@ -60,7 +59,7 @@ def test_spheres_free_implies_drake_exact_geometry_free(room):
     from vamg_drake.planning.drake_reference import DrakeCollisionWorld
 
     env = CollisionEnvironment.from_primitives(room)
-    checker = CollisionChecker.for_fetch(env, CollisionCheckerConfig(motion_resolution=0.0))
+    checker = SphereCollisionChecker.for_fetch(env, CollisionCheckerConfig(motion_resolution=0.0))
     drake = DrakeCollisionWorld(room)
     Q = _random_configs(np.random.default_rng(4), 400)
     free = checker.is_free(Q)
@@ -69,7 +68,7 @@ def test_spheres_free_implies_drake_exact_geometry_free(room):
 
 
 def test_limits_nan_and_batch_shape_are_rejected():
-    checker = CollisionChecker.for_fetch(CollisionEnvironment())
+    checker = SphereCollisionChecker.for_fetch(CollisionEnvironment())
     q = layout.stow_configuration(0.0, 0.0, 0.0)
     bad = np.stack([q, q, q])
     bad[1, layout.TORSO] = 1.0
@@ -80,7 +79,7 @@ def test_limits_nan_and_batch_shape_are_rejected():
 
 
 def test_densify_respects_motion_resolution():
-    checker = CollisionChecker.for_fetch(CollisionEnvironment())
+    checker = SphereCollisionChecker.for_fetch(CollisionEnvironment())
     a = layout.stow_configuration(0.0, 0.0, 0.0)
     b = layout.stow_configuration(1.0, 0.5, 2.0)
     dense = densify(np.stack([a, b]), checker)
@@ -91,7 +90,7 @@ def test_densify_respects_motion_resolution():
 
 def test_empty_map_is_free():
     env = CollisionEnvironment.from_points(np.zeros((0, 3)))
-    checker = CollisionChecker.for_fetch(env)
+    checker = SphereCollisionChecker.for_fetch(env)
     assert env.is_empty
     assert checker.is_free(layout.stow_configuration(0.0, 0.0, 0.0)[None])[0]
 
@@ -99,7 +98,7 @@ def test_empty_map_is_free():
 def test_edt_2d_matches_scipy():
     from scipy import ndimage
 
-    from vamg_drake.planning.collision import edt_2d
+    from vamg_drake.planning.distance_field import edt_2d
 
     rng = np.random.default_rng(0)
     for shape, p in [((60, 45), 0.02), ((1, 7), 0.3), ((33, 20), 0.0005)]:
@@ -115,7 +114,7 @@ def test_edt_3d_matches_scipy():
     on grids with thin and unequal axes."""
     from scipy import ndimage
 
-    from vamg_drake.planning.collision import edt_3d
+    from vamg_drake.planning.distance_field import edt_3d
 
     rng = np.random.default_rng(1)
     for shape, p in [((40, 31, 17), 0.01), ((1, 9, 5), 0.2), ((23, 1, 30), 0.05), ((12, 14, 1), 0.0005)]:
@@ -137,8 +136,8 @@ def test_point_field_decides_the_shell_exactly():
     points = np.stack([xs.ravel(), ys.ravel(), np.full(xs.size, 0.75)], 1) + rng.uniform(-0.01, 0.01, (xs.size, 3))
     env = CollisionEnvironment.from_points(points, resolution=0.03)
     assert env.field.has_points
-    checker = CollisionChecker.for_fetch(env, CollisionCheckerConfig(motion_resolution=0.0, self_padding=0.0))
-    bare = CollisionChecker.for_fetch(
+    checker = SphereCollisionChecker.for_fetch(env, CollisionCheckerConfig(motion_resolution=0.0, self_padding=0.0))
+    bare = SphereCollisionChecker.for_fetch(
         CollisionEnvironment.from_occupancy(env.field.occupancy, env.field.origin, 0.03),
         CollisionCheckerConfig(motion_resolution=0.0, self_padding=0.0))
     # Whole-body configurations with the gripper swept over and into the top.
@@ -146,7 +145,7 @@ def test_point_field_decides_the_shell_exactly():
     Q[:, 0] = rng.uniform(-0.4, 0.2, 600)
     Q[:, 3] = rng.uniform(0.0, 0.38, 600)
     Q[:, 5] = rng.uniform(-0.2, 0.9, 600)
-    self_ok = CollisionChecker.for_fetch(CollisionEnvironment(), checker.config).is_free(Q)
+    self_ok = SphereCollisionChecker.for_fetch(CollisionEnvironment(), checker.config).is_free(Q)
     centers = checker.sphere_centers(Q)
     d = np.linalg.norm(centers[:, :, None, :] - points[None, None], axis=3).min(axis=2)
     truth = self_ok & np.all(d > checker.sph_r[None], axis=1)
@@ -162,7 +161,7 @@ def test_point_field_decides_the_shell_exactly():
 
 def test_grasp_target_points_may_touch_the_gripper_only():
     """Points within the grasp target's ball block the forearm but not the fingers."""
-    checker = CollisionChecker.for_fetch(CollisionEnvironment(), CollisionCheckerConfig(motion_resolution=0.0))
+    checker = SphereCollisionChecker.for_fetch(CollisionEnvironment(), CollisionCheckerConfig(motion_resolution=0.0))
     q = np.array([0.0, 0.0, 0.0, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # arm straight out
     assert checker.is_free(q[None])[0]
     c = checker.sphere_centers(q[None])[0]
@@ -186,7 +185,7 @@ def test_the_support_under_the_grasp_target_blocks_the_gripper():
     from vamg_drake.robot.kinematics import FetchKinematics
 
     rng = np.random.default_rng(1)
-    checker = CollisionChecker.for_fetch(CollisionEnvironment(), CollisionCheckerConfig(motion_resolution=0.0))
+    checker = SphereCollisionChecker.for_fetch(CollisionEnvironment(), CollisionCheckerConfig(motion_resolution=0.0))
     q = np.array([0.0, 0.0, 0.0, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # arm straight out
     p_WT = FetchKinematics.instance().gripper_pose(q)[:3, 3]  # the object between the fingers
     obj = p_WT + rng.normal(size=(200, 3)) * 0.005
@@ -217,7 +216,7 @@ def test_drive_free_matches_is_free(room):
     arms += list(rng.uniform(layout.SAMPLE_LOWER[3:], layout.SAMPLE_UPPER[3:], (6, 8)))
     verdicts = []
     for env in envs:
-        checker = CollisionChecker.for_fetch(env)
+        checker = SphereCollisionChecker.for_fetch(env)
         for arm in arms:
             poses = np.column_stack([rng.uniform(0.0, 6.0, 2000), rng.uniform(0.0, 5.0, 2000),
                                      rng.uniform(-8.0, 8.0, 2000)])
@@ -231,10 +230,10 @@ def test_drive_free_matches_is_free(room):
 def test_base_pose_exact_check_matches_is_free(room):
     """`base_pose_free_exact` (the torso + arm's spheres precomputed in the
     base frame, moved rigidly) agrees with the full check."""
-    from vamg_drake.planning.collision import base_pose_free_exact
+    from vamg_drake.planning.sphere_checks import base_pose_free_exact
 
     rng = np.random.default_rng(22)
-    checker = CollisionChecker.for_fetch(CollisionEnvironment.from_primitives(room))
+    checker = SphereCollisionChecker.for_fetch(CollisionEnvironment.from_primitives(room))
     arms = [np.array([0.167, 0.43, 1.214, -0.738, 1.461, -0.093, 1.597, -1.9])]
     arms += list(rng.uniform(layout.SAMPLE_LOWER[3:], layout.SAMPLE_UPPER[3:], (4, 8)))
     seen = []

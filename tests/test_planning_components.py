@@ -100,11 +100,12 @@ def _synchronized_path_reference(poses, W):
 
 
 def test_compiled_synchronization_and_held_arm_densification_match_numpy():
-    from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment, densify
+    from vamg_drake.planning.collision_environment import CollisionEnvironment
+    from vamg_drake.planning.sphere_collision import SphereCollisionChecker, densify
     from vamg_drake.planning.whole_body_planner import WholeBodyPlanner, _densify_poses
 
     rng = np.random.default_rng(7)
-    checker = CollisionChecker.for_fetch(CollisionEnvironment())
+    checker = SphereCollisionChecker.for_fetch(CollisionEnvironment())
     for m, k in [(2, 2), (5, 2), (40, 4), (17, 9), (3, 3)]:
         poses = np.cumsum(rng.normal(0.0, 0.2, (m, 3)), axis=0)
         poses[1] = poses[0] if m > 2 else poses[1]  # a repeated pose (zero-length step)
@@ -125,10 +126,11 @@ def test_compiled_synchronization_and_held_arm_densification_match_numpy():
 def test_one_pass_coarse_free_grid_matches_the_two_pass_one():
     from vamg_drake.planning import hybrid_astar as ha
     from vamg_drake.planning.whole_body_planner import WholeBodyPlanner
-    from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment
+    from vamg_drake.planning.collision_environment import CollisionEnvironment
+    from vamg_drake.planning.sphere_collision import SphereCollisionChecker
     from vamg_drake.planning.problems import room_problem
 
-    base = CollisionChecker.for_fetch(CollisionEnvironment())
+    base = SphereCollisionChecker.for_fetch(CollisionEnvironment())
     problem = room_problem(5, base)
     planner = WholeBodyPlanner.for_fetch(CollisionEnvironment.from_primitives(problem.obstacles))
     search = planner._base_planner(problem.q_start[:3], problem.q_goal[:3])

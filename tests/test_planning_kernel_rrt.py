@@ -4,7 +4,8 @@ paths are valid and the same seed gives the same path."""
 import numpy as np
 import pytest
 
-from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment
+from vamg_drake.planning.collision_environment import CollisionEnvironment
+from vamg_drake.planning.sphere_collision import SphereCollisionChecker
 from vamg_drake.planning.problems import room_problem
 from vamg_drake.planning.whole_body_rrt import KernelRRTConfig, WholeBodySearchSpace
 from vamg_drake.robot import layout
@@ -15,7 +16,7 @@ W = np.r_[5.0, np.ones(7)]
 
 @pytest.fixture(scope="module")
 def room():
-    base = CollisionChecker.for_fetch(CollisionEnvironment())
+    base = SphereCollisionChecker.for_fetch(CollisionEnvironment())
     p = room_problem(3, base)
     return p, base.with_environment(CollisionEnvironment.from_primitives(p.obstacles))
 

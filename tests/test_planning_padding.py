@@ -4,7 +4,8 @@ map points appearing near the robot) are planned from; penetrating ones fail."""
 import numpy as np
 import pytest
 
-from vamg_drake.planning.collision import CollisionEnvironment, densify
+from vamg_drake.planning.collision_environment import CollisionEnvironment
+from vamg_drake.planning.sphere_collision import densify
 from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig, WholeBodyPlanner
 from vamg_drake.robot import layout
 from vamg_drake.world.primitives import WorldBox
@@ -120,9 +121,9 @@ def test_start_inside_the_self_collision_padding_plans():
     """Tracking error can bring the arm within the self-collision margin; the
     start is accepted when the unpadded spheres are apart, and the path leaves
     the margin at once."""
-    from vamg_drake.planning.collision import CollisionChecker, CollisionCheckerConfig
+    from vamg_drake.planning.sphere_collision import CollisionCheckerConfig, SphereCollisionChecker
 
-    checker = CollisionChecker.for_fetch(CollisionEnvironment(), CollisionCheckerConfig(self_padding=0.015))
+    checker = SphereCollisionChecker.for_fetch(CollisionEnvironment(), CollisionCheckerConfig(self_padding=0.015))
     planner = WholeBodyPlanner(checker, CONFIG)
     bare = checker.unpadded()
     rng = np.random.default_rng(4)

@@ -2,15 +2,16 @@
 
 import numpy as np
 
-from vamg_drake.planning.collision import CollisionChecker, CollisionCheckerConfig, CollisionEnvironment
+from vamg_drake.planning.collision_environment import CollisionEnvironment
+from vamg_drake.planning.sphere_collision import CollisionCheckerConfig, SphereCollisionChecker
 from vamg_drake.robot import layout
 from vamg_drake.robot.kinematics import FetchKinematics
 from vamg_drake.robot.spheres import SphereModel
 
 
-def _checker(prune: bool, self_padding: float = 0.0) -> CollisionChecker:
+def _checker(prune: bool, self_padding: float = 0.0) -> SphereCollisionChecker:
     sm = SphereModel.load()
-    return CollisionChecker(FetchKinematics.instance().tree, sm.link_index, sm.center_L, sm.radius,
+    return SphereCollisionChecker(FetchKinematics.instance().tree, sm.link_index, sm.center_L, sm.radius,
                             sm.self_collision_pairs, CollisionEnvironment(),
                             CollisionCheckerConfig(self_padding=self_padding),
                             body_primitives=sm.body_primitives, prune_self_tests=prune)
@@ -51,7 +52,7 @@ def test_self_padding_keeps_most_of_the_arm_free():
 
 def test_link_bounding_sphere_culling_agrees_with_every_test():
     """Self-collision groups skipped by their links' bounding spheres
-    (`CollisionChecker._self_culling`) never hide a collision: the same
+    (`SphereCollisionChecker._self_culling`) never hide a collision: the same
     verdicts as testing every pair, padded and unpadded."""
     def no_culling(checker):
         lb_c, lb_r, pair_end, bp_end = checker._self_cull

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment
+from vamg_drake.planning.collision_environment import CollisionEnvironment
+from vamg_drake.planning.sphere_collision import SphereCollisionChecker
 from vamg_drake.planning.problems import make_problem
 from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig, WholeBodyPlanner
 from vamg_drake.robot import layout
@@ -14,11 +15,11 @@ CONFIG = PlannerConfig(attempt_wall_limit_s=5.0)
 
 @pytest.fixture(scope="module")
 def base_checker():
-    return CollisionChecker.for_fetch(CollisionEnvironment())
+    return SphereCollisionChecker.for_fetch(CollisionEnvironment())
 
 
-def _dense_1cm(q: np.ndarray, checker: CollisionChecker) -> np.ndarray:
-    from vamg_drake.planning.collision import densify
+def _dense_1cm(q: np.ndarray, checker: SphereCollisionChecker) -> np.ndarray:
+    from vamg_drake.planning.sphere_collision import densify
 
     return densify(q, checker, resolution=0.01)
 
@@ -159,14 +160,16 @@ _COMPILES_AFTER_WARM_UP = """
 import sys
 import numpy as np
 from numba.core.registry import CPUDispatcher
-from vamg_drake.planning import collision, hybrid_astar, reeds_shepp, whole_body_planner, whole_body_rrt
-from vamg_drake.planning.collision import CollisionEnvironment
+from vamg_drake.planning import (collision_environment, distance_field, hybrid_astar, reeds_shepp, sphere_checks,
+                                 sphere_collision, whole_body_planner, whole_body_rrt)
+from vamg_drake.planning.collision_environment import CollisionEnvironment
 from vamg_drake.planning.whole_body_planner import WholeBodyPlanner
-from vamg_drake.robot import layout
+from vamg_drake.robot import kinematics, layout, spheres
 
 def signatures():
-    return {(m.__name__, k): len(v.signatures) for m in (collision, hybrid_astar, reeds_shepp, whole_body_planner,
-            whole_body_rrt) for k, v in vars(m).items() if isinstance(v, CPUDispatcher)}
+    return {(m.__name__, k): len(v.signatures) for m in (collision_environment, distance_field, hybrid_astar,
+            reeds_shepp, sphere_checks, sphere_collision, whole_body_planner, whole_body_rrt, kinematics, spheres)
+            for k, v in vars(m).items() if isinstance(v, CPUDispatcher)}
 
 planner = WholeBodyPlanner.for_fetch(CollisionEnvironment())
 planner.warm_up()

@@ -34,7 +34,8 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment
+from vamg_drake.planning.collision_environment import CollisionEnvironment
+from vamg_drake.planning.sphere_collision import SphereCollisionChecker
 from vamg_drake.planning.whole_body_rrt import WholeBodySearchSpace
 from vamg_drake.robot import layout
 
@@ -85,7 +86,7 @@ class ArmRoadmap:
 
     _CACHE: dict[bytes, "ArmRoadmap"] = {}
 
-    def __init__(self, checker: CollisionChecker, nodes: np.ndarray, cost_to_carry: np.ndarray,
+    def __init__(self, checker: SphereCollisionChecker, nodes: np.ndarray, cost_to_carry: np.ndarray,
                  next_toward_carry: np.ndarray, edges: np.ndarray, config: ArmRoadmapConfig):
         self.config = config
         self.nodes = nodes
@@ -99,7 +100,7 @@ class ArmRoadmap:
         self._memo: dict = {}  # query results (pure functions of the roadmap and the query)
 
     @staticmethod
-    def for_checker(checker: CollisionChecker, carry: np.ndarray,
+    def for_checker(checker: SphereCollisionChecker, carry: np.ndarray,
                     config: ArmRoadmapConfig | None = None) -> "ArmRoadmap":
         """The roadmap for this checker's robot model and self-collision
         padding and this carry pose: cached in memory, and on disk under
@@ -133,7 +134,7 @@ class ArmRoadmap:
         return roadmap
 
     @staticmethod
-    def build(checker: CollisionChecker, carry: np.ndarray, config: ArmRoadmapConfig | None = None) -> "ArmRoadmap":
+    def build(checker: SphereCollisionChecker, carry: np.ndarray, config: ArmRoadmapConfig | None = None) -> "ArmRoadmap":
         """Samples the roadmap (see the module docstring)."""
         config = config or ArmRoadmapConfig()
         if config.nodes < 2 or config.neighbours < 1:

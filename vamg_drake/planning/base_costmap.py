@@ -29,7 +29,8 @@ import math
 import numba
 import numpy as np
 
-from vamg_drake.planning.collision import CollisionEnvironment, edt_2d
+from vamg_drake.planning.collision_environment import CollisionEnvironment
+from vamg_drake.planning.distance_field import edt_2d
 from vamg_drake.planning.hybrid_astar import Costmap2D
 
 _SQRT2 = math.sqrt(2.0)

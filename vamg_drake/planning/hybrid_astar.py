@@ -9,7 +9,7 @@ disc centre's cell, minus the map's discretization bound, exceeds its radius.
 Near a start or goal whose footprint touches an obstacle (the robot parked at
 a table), poses are checked exactly instead: the whole-body sphere model
 with the travel arm (`exact_pose_check`, see
-`CollisionChecker.base_pose_check_data`). The search runs
+`SphereCollisionChecker.base_pose_check_data`). The search runs
 over (x, y, theta) bins with motion primitives (forward/backward arcs of the
 minimum turning radius and straight segments, plus in-place turns); its
 heuristic is the obstacle-aware 2D Dijkstra distance from the goal. Every few
@@ -25,7 +25,7 @@ import numba
 import numpy as np
 
 from vamg_drake.planning import reeds_shepp as rs
-from vamg_drake.planning.collision import base_pose_free_exact
+from vamg_drake.planning.sphere_checks import base_pose_free_exact
 from vamg_drake.robot import layout
 
 
@@ -536,7 +536,7 @@ class HybridAStar:
         costmap: the clearance layers.
         footprint: a `Footprint2D`, or a radius (one disc about the base origin).
         config: search parameters.
-        checker: optional `CollisionChecker` for exact whole-body pose
+        checker: optional `SphereCollisionChecker` for exact whole-body pose
             checks with `travel_arm` (torso + arm (8,)): poses that the 2D
             discs block by less than `exact_slack`, and poses near a
             start/goal whose footprint touches an obstacle (there with the

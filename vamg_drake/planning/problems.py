@@ -15,7 +15,8 @@ import dataclasses
 import numpy as np
 from scipy import ndimage
 
-from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment
+from vamg_drake.planning.collision_environment import CollisionEnvironment
+from vamg_drake.planning.sphere_collision import SphereCollisionChecker
 from vamg_drake.robot import layout
 from vamg_drake.world.primitives import WorldBox, rotation_z
 from vamg_drake.world.rooms import FloorGrid, generate_scenario
@@ -62,7 +63,7 @@ def furnished_room(rng: np.random.Generator, width: float = 6.0, depth: float = 
     return boxes
 
 
-def make_problem(seed: int, checker: CollisionChecker, min_distance: float = 3.0,
+def make_problem(seed: int, checker: SphereCollisionChecker, min_distance: float = 3.0,
                  max_tries: int = 2000) -> PlanningProblem:
     """A problem whose start and goal are free for `checker` over its current
     environment (set it to the room's primitives first, see `make_problems`)."""
@@ -103,7 +104,7 @@ def _segment_cells_free(free: np.ndarray, origin: np.ndarray, resolution: float,
     return bool(np.all(free[ij[:, 0], ij[:, 1]]))
 
 
-def room_problem(seed: int, checker: CollisionChecker, min_distance: float = 2.5,
+def room_problem(seed: int, checker: SphereCollisionChecker, min_distance: float = 2.5,
                  reach_radius: float = 0.8, max_tries: int = 4000) -> PlanningProblem:
     """A whole-body problem in the procedural room `generate_scenario(seed)`.
 

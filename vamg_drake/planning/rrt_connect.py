@@ -1,7 +1,7 @@
 """RRT-Connect (Kuffner & LaValle 2000) over a box of joint space.
 
 Generic: the caller gives a motion validity function (qa, qb) -> bool that
-checks the straight segment (in batches, see `CollisionChecker.motion_free`)
+checks the straight segment (in batches, see `SphereCollisionChecker.motion_free`)
 and the sampling bounds. Used for the torso + 7-joint arm at a fixed base.
 """
 

@@ -43,7 +43,7 @@ checked states are free, and by `self_padding` in the self-collision tests
 (a tracking margin). A configuration is *in collision* only when the
 unpadded spheres (radius + `extra_padding`) penetrate the environment, two
 unpadded spheres of a self-collision pair overlap (or a sphere enters a body
-primitive), or a joint is outside its limits (`CollisionChecker.unpadded`). A start (goal) that is free but inside the
+primitive), or a joint is outside its limits (`SphereCollisionChecker.unpadded`). A start (goal) that is free but inside the
 padding (in closed loop: tracking error, or map points appearing as the robot
 approaches furniture) is accepted: the path first leaves the padding by the
 shortest short motion that reaches a padded-free configuration (the base
@@ -72,7 +72,8 @@ import numpy as np
 from vamg_drake.planning import smoothing, whole_body_rrt
 from vamg_drake.planning.arm_roadmap import ArmRoadmap
 from vamg_drake.planning.base_costmap import base_costmap
-from vamg_drake.planning.collision import CollisionChecker, CollisionCheckerConfig, CollisionEnvironment, densify, densify_indexed
+from vamg_drake.planning.collision_environment import CollisionEnvironment
+from vamg_drake.planning.sphere_collision import CollisionCheckerConfig, SphereCollisionChecker, densify, densify_indexed
 from vamg_drake.planning.hybrid_astar import Footprint2D, HybridAStar, HybridAStarConfig
 from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.planning.whole_body_rrt import KernelRRTConfig, RRTConnectSearch, WholeBodySearchSpace
@@ -366,16 +367,16 @@ class WholeBodyPlanner:
     """Plans collision-free whole-body trajectories for the Fetch.
 
     Args:
-        checker: the batched `CollisionChecker` (holds the environment).
+        checker: the batched `SphereCollisionChecker` (holds the environment).
         config: `PlannerConfig`.
     """
 
-    def __init__(self, checker: CollisionChecker, config: PlannerConfig | None = None):
+    def __init__(self, checker: SphereCollisionChecker, config: PlannerConfig | None = None):
         config = config or PlannerConfig()
         self.config = config
         self.checker = checker
         self._hybrid: HybridAStar | None = None
-        self._bare: CollisionChecker | None = None
+        self._bare: SphereCollisionChecker | None = None
         self.travel = np.asarray(config.travel_torso_arm, dtype=float)
         #: attempts of this planner's plans that the wall-clock safety net
         #: stopped or cut short (`PlanResult.wall_limit_hits`, summed).
@@ -390,13 +391,13 @@ class WholeBodyPlanner:
     def for_fetch(env: CollisionEnvironment, config: PlannerConfig | None = None) -> "WholeBodyPlanner":
         config = config or PlannerConfig()
 
-        cc = CollisionChecker.for_fetch(
+        cc = SphereCollisionChecker.for_fetch(
             env, CollisionCheckerConfig(motion_resolution=config.motion_resolution,
                                         extra_padding=config.extra_padding))
         return WholeBodyPlanner(cc, config)
 
     @staticmethod
-    def _travel_footprint(checker: CollisionChecker, travel: np.ndarray, split_z: float):
+    def _travel_footprint(checker: SphereCollisionChecker, travel: np.ndarray, split_z: float):
         """Two discs covering the travel-pose robot's (padded) spheres: those
         reaching below `split_z` (the base) and the rest (torso, arm, head),
         each against the obstacles of its own height band.
@@ -510,7 +511,7 @@ class WholeBodyPlanner:
             q = np.concatenate([trajectory.sample(from_time)[None], q[keep]])
         return self.path_is_valid(q)
 
-    def path_is_valid(self, path: np.ndarray, checker: CollisionChecker | None = None) -> bool:
+    def path_is_valid(self, path: np.ndarray, checker: SphereCollisionChecker | None = None) -> bool:
         """The planner's validity rule for a path (N, 11) of straight segments:
         free for the padded spheres at the motion resolution, except for a
         leading and a trailing piece that may be inside the padding but must
@@ -532,13 +533,13 @@ class WholeBodyPlanner:
         return ((i0 == 0 or self._unpadded_path_free(dense[:i0 + 1], bare))
                 and (i1 == dense.shape[0] - 1 or self._unpadded_path_free(dense[i1:], bare)))
 
-    def unpadded_checker(self) -> CollisionChecker:
-        """`CollisionChecker.unpadded` of the planner's checker (cached per environment)."""
+    def unpadded_checker(self) -> SphereCollisionChecker:
+        """`SphereCollisionChecker.unpadded` of the planner's checker (cached per environment)."""
         if self._bare is None or self._bare.env is not self.checker.env:
             self._bare = self.checker.unpadded()
         return self._bare
 
-    def _unpadded_path_free(self, path: np.ndarray, bare: CollisionChecker | None = None) -> bool:
+    def _unpadded_path_free(self, path: np.ndarray, bare: SphereCollisionChecker | None = None) -> bool:
         """Path (N, 11) free for the unpadded spheres at `end_check_resolution`."""
         bare = bare or self.unpadded_checker()
         return bare.first_collision(densify(path, bare, resolution=self.config.end_check_resolution)) < 0

@@ -12,7 +12,7 @@ compiled kernel:
   base path in seconds of travel at the tracker's limits (the base pose is
   interpolated on the path; u may go back: the base reverses on its curve).
 
-Motions are checked like `CollisionChecker.motion_free`: states at a spacing
+Motions are checked like `SphereCollisionChecker.motion_free`: states at a spacing
 where no sphere centre moves more than the checker's motion resolution (the
 per-coordinate lever bounds), coarse-to-fine, early exit.
 
@@ -29,7 +29,8 @@ import time
 import numba
 import numpy as np
 
-from vamg_drake.planning.collision import CollisionChecker, config_free_data
+from vamg_drake.planning.sphere_checks import config_free_data
+from vamg_drake.planning.sphere_collision import SphereCollisionChecker
 from vamg_drake.robot import layout
 
 
@@ -206,7 +207,7 @@ class WholeBodySearchSpace:
     (N, d) to whole-body configurations (N, 11).
     """
 
-    def __init__(self, checker: CollisionChecker, along: bool, base: np.ndarray, poses: np.ndarray,
+    def __init__(self, checker: SphereCollisionChecker, along: bool, base: np.ndarray, poses: np.ndarray,
                  cum: np.ndarray, dt: np.ndarray, lever: np.ndarray):
         self.checker = checker
         self.along = along
@@ -220,14 +221,14 @@ class WholeBodySearchSpace:
         self._xs = np.empty(self.lever.shape[0])
 
     @staticmethod
-    def fixed_base(checker: CollisionChecker, base: np.ndarray) -> "WholeBodySearchSpace":
+    def fixed_base(checker: SphereCollisionChecker, base: np.ndarray) -> "WholeBodySearchSpace":
         """x = torso + arm (8,) at the base pose (3,)."""
         dummy = np.zeros((2, 3))
         return WholeBodySearchSpace(checker, False, np.asarray(base, float), dummy, np.zeros(2), np.ones(1),
                                     checker.lever[3:])
 
     @staticmethod
-    def along_path(checker: CollisionChecker, poses: np.ndarray) -> "WholeBodySearchSpace":
+    def along_path(checker: SphereCollisionChecker, poses: np.ndarray) -> "WholeBodySearchSpace":
         """x = (u, torso + arm) (9,) along the base path poses (N, 3), N >= 2."""
         d = np.diff(poses, axis=0)
         dt = np.maximum(np.hypot(d[:, 0], d[:, 1]) / layout.TRACKER_BASE_V,

@@ -15,7 +15,7 @@ Three proposal distributions and three constraint checks, by rejection:
   approach, filtered by the capability map;
 
 then arm-only IK (base and torso fixed, `FastIk`), collision (an ``is_free``
-callable, e.g. `CollisionChecker.is_free`) and self-occlusion of the target
+callable, e.g. `SphereCollisionChecker.is_free`) and self-occlusion of the target
 from the head camera (`TargetVisibility`). Bases are visited one at a time
 (``samples_per_base`` end-effector samples each, as one batch) and the first
 valid configuration is returned, as in the paper's Algorithm.

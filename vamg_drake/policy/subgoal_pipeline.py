@@ -6,7 +6,7 @@ here), the pre-grasp and observe samplers, and builds the collision check from
 the map points at each call. `SubgoalPipeline.samplers()` returns the
 `SubgoalSamplers` the behaviour tree calls.
 
-Collision checks use the planner's `CollisionChecker` on the map points near
+Collision checks use the planner's `SphereCollisionChecker` on the map points near
 the target and the robot, minus a small ball around the target, which only
 the robot body (every sphere but the gripper's) must keep clear of: the
 fingers are meant to reach the object, and the grasp sampler has already
@@ -31,7 +31,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from vamg_drake.perception.point_clusters import MirrorCompletionConfig, mirrored_object_points
-from vamg_drake.planning.collision import CollisionChecker, CollisionCheckerConfig, CollisionEnvironment
+from vamg_drake.planning.collision_environment import CollisionEnvironment
+from vamg_drake.planning.sphere_collision import CollisionCheckerConfig, SphereCollisionChecker
 from vamg_drake.policy.arm_chain import base_poses
 from vamg_drake.policy.behaviour_tree import FailureCategory, PolicyInputs, SubgoalProposal, SubgoalSamplers
 from vamg_drake.policy.grasp_candidates import AntipodalGraspConfig, AntipodalGraspSampler, GraspCandidates, GraspCandidateSource
@@ -195,7 +196,7 @@ class SubgoalPipeline:
             local = np.array([[1e3, 1e3, 1e3]])  # nothing observed: one far point
         env = CollisionEnvironment.from_points(local, cfg.collision_resolution, grasp_target=p_WT,
                                                grasp_target_radius=cfg.target_clearance)
-        checker = CollisionChecker.for_fetch(env, CollisionCheckerConfig())
+        checker = SphereCollisionChecker.for_fetch(env, CollisionCheckerConfig())
         grasp_free = checker.with_environment(dc.replace(env, grasp_target_floor=-np.inf)).is_free
         self._cache_key, self._cache = key, (checker.is_free, grasp_free)
         return self._cache[int(grasp)]

@@ -22,7 +22,8 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem
 
 from vamg_drake.perception.raycast_map import PointMapSnapshot
-from vamg_drake.planning.collision import CollisionChecker, CollisionEnvironment
+from vamg_drake.planning.collision_environment import CollisionEnvironment
+from vamg_drake.planning.sphere_collision import SphereCollisionChecker
 from vamg_drake.planning.smoothing import time_parametrize
 from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig, WholeBodyPlanner
@@ -53,7 +54,7 @@ def _arm_spheres() -> tuple[np.ndarray, np.ndarray]:
     return np.isin(np.asarray(spheres.link_names)[spheres.link_index], ARM_LINKS), spheres.radius
 
 
-def arm_floor_clearance(checker: CollisionChecker, path: np.ndarray) -> float:
+def arm_floor_clearance(checker: SphereCollisionChecker, path: np.ndarray) -> float:
     """The lowest point of the arm's (unpadded) spheres over the configurations
     path (K, 11) [m], from the checker's compiled sphere centres.
 
@@ -318,7 +319,7 @@ class MotionSupervisor:
             return False
         return self.planner.path_is_valid(path, checker=checker)
 
-    def exempt_checker(self) -> CollisionChecker | None:
+    def exempt_checker(self) -> SphereCollisionChecker | None:
         """The planner's checker whose environment lets the gripper touch the
         points near `target`; None without a target."""
         env = self.planner.checker.env

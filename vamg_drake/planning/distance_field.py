@@ -1,0 +1,192 @@
+"""A Euclidean distance field on a voxel grid, with the points it was built from.
+
+Built from map points (N, 3) or from a boolean occupancy grid (the map's
+0.03 m voxels) by an exact separable distance transform (`edt_3d`).
+
+Conservativeness (the bound `DistanceField.margin`): every obstacle point p
+lies in an occupied cell whose centre v is within (sqrt(3)/2) h of p; a query
+centre c is looked up at its nearest cell centre g, within (sqrt(3)/2) h of
+c; the field stores D(g) = min_v |g - v| exactly. By the triangle inequality
+    D(g) - sqrt(3) h <= |c - p| <= D(g) + sqrt(3) h,
+so a sphere (c, r) is certainly free when D(g) - sqrt(3) h > r and certainly
+hits an occupied cell's point when D(g) + sqrt(3) h <= r. A field built from
+points (`DistanceField.from_points`, the map) keeps them, indexed by cell, and
+settles the shell in between exactly: the sphere is free iff no point lies
+within r of c (the obstacle set is the map's points; the motion padding covers
+the surface between samples). A field built from bare occupancy (no points)
+counts the whole shell as collision. Cells outside the grid are free: the grid
+is padded by more than the largest sphere radius plus the bound around every
+obstacle cell.
+"""
+
+import dataclasses
+import math
+
+import numba
+import numpy as np
+
+SQRT3 = math.sqrt(3.0)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class DistanceField:
+    """Distances [m] from voxel centres to the nearest occupied voxel centre.
+
+    Attributes:
+        dist: (nx, ny, nz) float32 distance per cell.
+        origin: (3,) world position of the centre of cell (0, 0, 0).
+        resolution: cell size h [m].
+        margin: the conservative discretization bound sqrt(3) h.
+        occupancy: (nx, ny, nz) bool occupied cells.
+        points: (N, 3) the obstacle points grouped by cell (empty for a field
+            built from bare occupancy), for exact tests near obstacles.
+        cell_keys: (M,) sorted flat indices of the cells holding points.
+        cell_start: (M + 1,) points[cell_start[m]:cell_start[m + 1]] lie in
+            cell cell_keys[m].
+    """
+
+    dist: np.ndarray
+    origin: np.ndarray
+    resolution: float
+    margin: float
+    occupancy: np.ndarray
+    points: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))
+    cell_keys: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))
+    cell_start: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(1, np.int64))
+
+    @property
+    def has_points(self) -> bool:
+        """Whether near-obstacle tests are exact against the points."""
+        return self.points.shape[0] > 0
+
+    @property
+    def num_occupied(self) -> int:
+        return int(self.occupancy.sum())
+
+    @staticmethod
+    def from_occupancy(
+        occupied: np.ndarray, origin: np.ndarray, resolution: float, pad: float = 0.5
+    ) -> "DistanceField":
+        """Builds the field from a bool grid whose cell (0,0,0) is centred at origin.
+
+        The grid is padded by `pad` metres on each side so that spheres near the
+        boundary see the obstacles; beyond the padded grid everything is free.
+        """
+        occupied = np.asarray(occupied)
+        if occupied.ndim != 3 or occupied.dtype != bool:
+            raise ValueError(f"occupancy must be a 3D bool array, got {occupied.dtype} {occupied.shape}")
+        if not resolution > 0:
+            raise ValueError(f"resolution must be positive, got {resolution}")
+        origin = np.asarray(origin, dtype=float).reshape(3)
+        if not np.all(np.isfinite(origin)):
+            raise ValueError("occupancy origin contains NaN or inf")
+        n_pad = int(math.ceil(pad / resolution))
+        occ = np.pad(occupied, n_pad, mode="constant", constant_values=False)
+        origin = origin - n_pad * resolution
+        if occ.any():
+            dist = edt_3d(occ, float(resolution))
+        else:
+            dist = np.full(occ.shape, np.float32(1e6))
+        return DistanceField(dist, origin, float(resolution), SQRT3 * resolution, occ)
+
+    @staticmethod
+    def from_points(points: np.ndarray, resolution: float = 0.03, pad: float = 0.5) -> "DistanceField":
+        """Bins obstacle points (N, 3) into a grid of cell size `resolution`."""
+        points = np.asarray(points, dtype=float)
+        if points.ndim != 2 or points.shape[1] != 3:
+            raise ValueError(f"points must have shape (N, 3), got {points.shape}")
+        finite = np.all(np.isfinite(points), axis=1)
+        points = points[finite]
+        if points.shape[0] == 0:
+            # An empty map: a single free cell; everything is free.
+            return DistanceField.from_occupancy(np.zeros((1, 1, 1), bool), np.zeros(3), resolution, pad=0.0)
+        lo = np.floor(points.min(axis=0) / resolution) * resolution
+        idx = np.floor((points - lo) / resolution).astype(np.int64)
+        shape = idx.max(axis=0) + 1
+        occ = np.zeros(shape, dtype=bool)
+        occ[idx[:, 0], idx[:, 1], idx[:, 2]] = True
+        f = DistanceField.from_occupancy(occ, lo + 0.5 * resolution, resolution, pad)
+        # Index the points by their cell of the padded grid.
+        n_pad = int(round((lo[0] + 0.5 * resolution - f.origin[0]) / resolution))
+        idx += n_pad
+        ny, nz = f.dist.shape[1], f.dist.shape[2]
+        flat = (idx[:, 0] * ny + idx[:, 1]) * nz + idx[:, 2]
+        order = np.argsort(flat, kind="stable")
+        flat = flat[order]
+        keys, start = np.unique(flat, return_index=True)
+        cell_start = np.append(start, flat.shape[0]).astype(np.int64)
+        return dataclasses.replace(f, points=np.ascontiguousarray(points[order]),
+                                   cell_keys=np.ascontiguousarray(keys, np.int64), cell_start=cell_start)
+
+
+@numba.njit(cache=True)
+def _edt_1d(f, n, d, v, z):
+    """Squared distance transform of samples f[:n] (Felzenszwalb-Huttenlocher
+    lower envelope of parabolas) into d[:n]; v, z are scratch."""
+    k = 0
+    v[0] = 0
+    z[0] = -np.inf
+    z[1] = np.inf
+    for q in range(1, n):
+        if f[q] == np.inf:
+            continue
+        if f[v[k]] == np.inf:
+            v[k] = q
+            continue
+        while True:
+            p = v[k]
+            sp = ((f[q] + q * q) - (f[p] + p * p)) / (2.0 * q - 2.0 * p)
+            if sp <= z[k]:
+                k -= 1
+                if k < 0:
+                    k = 0
+                    v[0] = q
+                    z[0] = -np.inf
+                    z[1] = np.inf
+                    break
+                continue
+            k += 1
+            v[k] = q
+            z[k] = sp
+            z[k + 1] = np.inf
+            break
+    k = 0
+    for q in range(n):
+        while z[k + 1] < q:
+            k += 1
+        p = v[k]
+        d[q] = (q - p) * (q - p) + f[p]
+
+
+def edt_2d(occupied: np.ndarray, h: float) -> np.ndarray:
+    """Euclidean distance [m] from every cell centre of a 2D bool grid to the
+    nearest occupied cell centre (cell size h); inf where nothing is occupied."""
+    return edt_3d(np.ascontiguousarray(occupied)[:, :, None], float(h))[:, :, 0]
+
+
+def edt_3d(occupied: np.ndarray, h: float) -> np.ndarray:
+    """Euclidean distance [m] from every cell centre of a 3D bool grid to the
+    nearest occupied cell centre (cell size h), float32; inf where nothing is
+    occupied. Exact (separable squared-distance transform, one pass per axis),
+    O(cells), no index arrays: 5.7x faster than SciPy's
+    `distance_transform_edt` on 6M-cell room grids, with the same float32
+    distances (benchmarks/bench_motion_layer.py, session 8, idle machine)."""
+    g = np.where(np.asarray(occupied, dtype=bool), 0.0, np.inf)
+    m = max(g.shape)
+    scratch = (np.empty(m), np.empty(m), np.empty(m, dtype=np.int64), np.empty(m + 1))
+    for axes in ((0, 1, 2), (0, 2, 1), (1, 2, 0)):  # along z, then y, then x
+        _edt_lines(g.transpose(axes), *scratch)
+    return (np.sqrt(g) * h).astype(np.float32)
+
+
+@numba.njit(cache=True)
+def _edt_lines(g, f, d, v, z):
+    """Squared distance transform along the last axis of g (3D), in place."""
+    a, b, n = g.shape
+    for i in range(a):
+        for j in range(b):
+            for k in range(n):
+                f[k] = g[i, j, k]
+            _edt_1d(f, n, d, v, z)
+            for k in range(n):
+                g[i, j, k] = d[k]
