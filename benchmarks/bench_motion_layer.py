@@ -37,7 +37,7 @@ from pydrake.systems.analysis import Simulator  # noqa: E402
 from vamg_drake.perception.raycast_map import PointMap  # noqa: E402
 from vamg_drake.planning.distance_field import DistanceField, edt_3d  # noqa: E402
 from vamg_drake.planning.whole_body_planner import PlannerConfig  # noqa: E402
-from vamg_drake.policy import synthetic_clouds as clouds  # noqa: E402
+from vamg_drake.testing import synthetic_clouds as clouds  # noqa: E402
 from vamg_drake.policy.behaviour_tree import MotionEvent, Phase, SubgoalCommand  # noqa: E402
 from vamg_drake.robot import layout  # noqa: E402
 from vamg_drake.robot.head_camera import CameraIntrinsics, HeadCameraConfig  # noqa: E402

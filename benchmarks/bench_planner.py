@@ -1,6 +1,6 @@
 """Benchmark of the whole-body planner on seeded problems in furnished rooms.
 
-Workload: `--problems` (default 50) problems `vamg_drake.planning.problems.room_problem(seed)`,
+Workload: `--problems` (default 50) problems `vamg_drake.testing.planning_problems.room_problem(seed)`,
 seeds 0..N-1: the walls and furniture of the procedural room
 `vamg_drake.world.rooms.generate_scenario(seed)` (15-50 m^2, rectangular or
 L-shaped, 3-12 pieces of furniture), start at the scenario's robot pose, goal
@@ -48,8 +48,8 @@ import numpy as np
 
 from vamg_drake.planning.collision_environment import CollisionEnvironment
 from vamg_drake.planning.sphere_collision import SphereCollisionChecker, densify
-from vamg_drake.planning.drake_reference import DrakeCollisionWorld
-from vamg_drake.planning.problems import room_problem
+from vamg_drake.testing.drake_reference import DrakeCollisionWorld
+from vamg_drake.testing.planning_problems import room_problem
 from vamg_drake.planning.whole_body_planner import PlannerConfig, WholeBodyPlanner
 from vamg_drake.robot import layout
 

@@ -32,7 +32,7 @@ import time
 
 import numpy as np
 
-from vamg_drake.policy import synthetic_clouds
+from vamg_drake.testing import synthetic_clouds
 from vamg_drake.policy.grasp_candidates import AntipodalGraspSampler
 from vamg_drake.policy.ik import DrakeIk, FastIk
 from vamg_drake.policy.kinematic_maps import KinematicMaps

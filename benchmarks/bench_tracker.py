@@ -1,6 +1,6 @@
 """Benchmark: tracking accuracy and per-call cost of the whole-body tracker.
 
-Workload: seeded references (`vamg_drake.control.tracking_rollout`): straight
+Workload: seeded references (`vamg_drake.testing.tracking_rollout`): straight
 lines (1-4 m), forward arcs (radius 0.6-2 m, 0.8-2.5 rad, torso and arm moving) and shortest
 Reeds-Shepp paths with a cusp (turning radius 0.4 m, the planner's), all timed
 at the layout's rate limits. Each is tracked at 20 Hz from its start with the
@@ -24,7 +24,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from vamg_drake.control.tracking_rollout import (  # noqa: E402
+from vamg_drake.testing.tracking_rollout import (  # noqa: E402
     arc_reference,
     cross_track_errors,
     reeds_shepp_reference,

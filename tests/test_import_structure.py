@@ -32,6 +32,9 @@ rank  layer               modules
 8     episode             ``episode``
 9     bench               ``bench.*``
 10    cli                 ``cli``
+11    testing             ``testing.*``: seeded workloads and references for
+                          the tests and benchmarks, which nothing in the
+                          product imports
 ====  ==================  =====================================================
 
 An import inside a function or class body is forbidden, of a package module
@@ -65,6 +68,7 @@ LAYERS: dict[str, int] = {
     "episode": 8,
     "bench": 9,
     "cli": 10,
+    "testing": 11,
 }
 
 #: The layer of each module or subpackage directly under the package.
@@ -84,6 +88,7 @@ TOP_LEVEL: dict[str, str] = {
     "episode": "episode",
     "bench": "bench",
     "cli": "cli",
+    "testing": "testing",
 }
 
 #: Third-party packages that may be imported inside a function, and why: they

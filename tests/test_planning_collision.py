@@ -6,7 +6,7 @@ import pytest
 from vamg_drake.planning.collision_environment import CollisionEnvironment, support_height
 from vamg_drake.planning.distance_field import DistanceField
 from vamg_drake.planning.sphere_collision import CollisionCheckerConfig, SphereCollisionChecker, bisection_order, densify
-from vamg_drake.planning.problems import furnished_room
+from vamg_drake.testing.planning_problems import furnished_room
 from vamg_drake.robot import layout
 
 
@@ -56,7 +56,7 @@ def test_self_collision_matches_sphere_model():
 
 
 def test_spheres_free_implies_drake_exact_geometry_free(room):
-    from vamg_drake.planning.drake_reference import DrakeCollisionWorld
+    from vamg_drake.testing.drake_reference import DrakeCollisionWorld
 
     env = CollisionEnvironment.from_primitives(room)
     checker = SphereCollisionChecker.for_fetch(env, CollisionCheckerConfig(motion_resolution=0.0))

@@ -128,7 +128,7 @@ def test_one_pass_coarse_free_grid_matches_the_two_pass_one():
     from vamg_drake.planning.whole_body_planner import WholeBodyPlanner
     from vamg_drake.planning.collision_environment import CollisionEnvironment
     from vamg_drake.planning.sphere_collision import SphereCollisionChecker
-    from vamg_drake.planning.problems import room_problem
+    from vamg_drake.testing.planning_problems import room_problem
 
     base = SphereCollisionChecker.for_fetch(CollisionEnvironment())
     problem = room_problem(5, base)

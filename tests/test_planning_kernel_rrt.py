@@ -6,7 +6,7 @@ import pytest
 
 from vamg_drake.planning.collision_environment import CollisionEnvironment
 from vamg_drake.planning.sphere_collision import SphereCollisionChecker
-from vamg_drake.planning.problems import room_problem
+from vamg_drake.testing.planning_problems import room_problem
 from vamg_drake.planning.whole_body_rrt import KernelRRTConfig, WholeBodySearchSpace
 from vamg_drake.robot import layout
 

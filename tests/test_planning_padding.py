@@ -34,7 +34,7 @@ def planner():
 
 
 def test_start_one_centimetre_from_a_wall_plans_and_is_free_in_drake(planner):
-    from vamg_drake.planning.drake_reference import DrakeCollisionWorld
+    from vamg_drake.testing.drake_reference import DrakeCollisionWorld
 
     wall = _wall_at(_front_of_robot(planner, Q_START) + 0.01)
     planner.set_environment(CollisionEnvironment.from_primitives([wall]))

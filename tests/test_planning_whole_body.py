@@ -5,7 +5,7 @@ import pytest
 
 from vamg_drake.planning.collision_environment import CollisionEnvironment
 from vamg_drake.planning.sphere_collision import SphereCollisionChecker
-from vamg_drake.planning.problems import make_problem
+from vamg_drake.testing.planning_problems import make_problem
 from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig, WholeBodyPlanner
 from vamg_drake.robot import layout
 
@@ -26,7 +26,7 @@ def _dense_1cm(q: np.ndarray, checker: SphereCollisionChecker) -> np.ndarray:
 
 @pytest.mark.parametrize("seed", [4, 7])
 def test_plan_in_generated_room_is_free_in_drake_exact_geometry(seed, base_checker):
-    from vamg_drake.planning.drake_reference import DrakeCollisionWorld
+    from vamg_drake.testing.drake_reference import DrakeCollisionWorld
 
     problem = make_problem(seed, base_checker)
     env = CollisionEnvironment.from_primitives(problem.obstacles).voxelized(0.03)  # the map's view
@@ -48,8 +48,8 @@ def test_plan_in_generated_room_is_free_in_drake_exact_geometry(seed, base_check
 @pytest.mark.parametrize("seed", [3])
 def test_plan_in_procedural_room_is_free_in_drake_exact_geometry(seed, base_checker):
     """The benchmark's workload: a `generate_scenario` room, goal at the target."""
-    from vamg_drake.planning.drake_reference import DrakeCollisionWorld
-    from vamg_drake.planning.problems import room_problem
+    from vamg_drake.testing.drake_reference import DrakeCollisionWorld
+    from vamg_drake.testing.planning_problems import room_problem
 
     problem = room_problem(seed, base_checker)
     assert problem.blocked  # furniture between start and goal
@@ -144,7 +144,7 @@ def test_door_too_narrow_for_the_base_ends_at_the_search_limit(base_checker):
 
 def test_warm_up_does_not_change_the_plan(base_checker):
     """`warm_up` only loads the compiled kernels: the same plan after it."""
-    from vamg_drake.planning.problems import room_problem
+    from vamg_drake.testing.planning_problems import room_problem
 
     problem = room_problem(3, base_checker)
     env = CollisionEnvironment.from_primitives(problem.obstacles)
@@ -204,8 +204,8 @@ def test_fixed_base_searches_between_the_along_path_search_rounds(base_checker):
     """Bench room 26: the along-path search (c) does not connect in its first
     round, the fixed-base searches (d) do; the plan is free in Drake's exact
     geometry at 1 cm."""
-    from vamg_drake.planning.drake_reference import DrakeCollisionWorld
-    from vamg_drake.planning.problems import room_problem
+    from vamg_drake.testing.drake_reference import DrakeCollisionWorld
+    from vamg_drake.testing.planning_problems import room_problem
 
     problem = room_problem(26, base_checker)
     planner = WholeBodyPlanner.for_fetch(CollisionEnvironment.from_primitives(problem.obstacles),
@@ -262,7 +262,7 @@ def test_the_budget_is_iterations_not_wall_time(base_checker):
     19): an attempt's budget counts RRT-Connect iterations; the wall-clock
     limit is a safety net, counted when it fires. Room problem 25: the first
     attempt's searches all fail (1200 iterations), the second connects."""
-    from vamg_drake.planning.problems import room_problem
+    from vamg_drake.testing.planning_problems import room_problem
 
     problem = room_problem(25, base_checker)
     env = CollisionEnvironment.from_primitives(problem.obstacles)

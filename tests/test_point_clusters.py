@@ -3,7 +3,7 @@
 import numpy as np
 
 from vamg_drake.perception.point_clusters import MirrorCompletionConfig, component_nearest, mirrored_object_points
-from vamg_drake.policy import synthetic_clouds as clouds
+from vamg_drake.testing import synthetic_clouds as clouds
 
 
 def test_component_nearest_follows_links_and_stops_at_gaps() -> None:

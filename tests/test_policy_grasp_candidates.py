@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vamg_drake.policy import synthetic_clouds as clouds
+from vamg_drake.testing import synthetic_clouds as clouds
 from vamg_drake.policy.grasp_candidates import AntipodalGraspConfig, AntipodalGraspSampler, GraspCandidates
 from vamg_drake.policy.grasp_ranking import (
     GraspRankingConfig,

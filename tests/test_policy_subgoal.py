@@ -7,7 +7,7 @@ import dataclasses as dc
 import numpy as np
 import pytest
 
-from vamg_drake.policy import synthetic_clouds as clouds
+from vamg_drake.testing import synthetic_clouds as clouds
 from vamg_drake.policy.behaviour_tree import FailureCategory, MotionEvent, Phase, PolicyInputs, SubgoalBehaviour
 from vamg_drake.policy.kinematic_maps import KinematicMaps
 from vamg_drake.policy.pregrasp_sampler import BaseCostmap, CostmapConfig

@@ -98,7 +98,7 @@ def test_policy_system_motion_failure_feedback() -> None:
 
 
 def test_real_subgoal_policy_in_a_diagram() -> None:
-    from vamg_drake.policy import synthetic_clouds
+    from vamg_drake.testing import synthetic_clouds
     from vamg_drake.systems.subgoal_policy_system import make_subgoal_policy
 
     points, target = synthetic_clouds.tabletop_scene()

@@ -13,7 +13,7 @@ from pydrake.systems.analysis import Simulator
 from scenes import box_room_scenario
 from vamg_drake.bench.methods import known_methods, load_method
 from vamg_drake.diagram import DiagramConfig, apply_strategy_defaults, build_diagram
-from vamg_drake.policy import synthetic_clouds as clouds
+from vamg_drake.testing import synthetic_clouds as clouds
 from vamg_drake.policy.behaviour_tree import (
     BehaviourConfig,
     FailureCategory,

@@ -13,7 +13,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource, ConstantVectorSource, Demultiplexer
 
 from scenes import box_room_scenario
-from vamg_drake.control.tracking_rollout import (
+from vamg_drake.testing.tracking_rollout import (
     arc_reference,
     cross_track_errors,
     reeds_shepp_reference,
