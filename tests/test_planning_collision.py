@@ -6,8 +6,10 @@ import pytest
 from vamg_drake.planning.collision_environment import CollisionEnvironment, support_height
 from vamg_drake.planning.distance_field import DistanceField
 from vamg_drake.planning.sphere_collision import CollisionCheckerConfig, SphereCollisionChecker, bisection_order, densify
-from vamg_drake.testing.planning_problems import furnished_room
 from vamg_drake.robot import layout
+from vamg_drake.robot.kinematics import FetchKinematics
+from vamg_drake.robot.spheres import SphereModel
+from vamg_drake.testing.planning_problems import furnished_room
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +48,6 @@ def test_map_field_free_implies_exactly_free(room):
 
 
 def test_self_collision_matches_sphere_model():
-    from vamg_drake.robot.spheres import SphereModel
 
     checker = SphereCollisionChecker.for_fetch(CollisionEnvironment(),
                                          CollisionCheckerConfig(motion_resolution=0.0, self_padding=0.0))
@@ -182,7 +183,6 @@ def test_grasp_target_points_may_touch_the_gripper_only():
 def test_the_support_under_the_grasp_target_blocks_the_gripper():
     """Table-top points inside the target's ball are the support, not the
     object: the gripper may touch the object's points only."""
-    from vamg_drake.robot.kinematics import FetchKinematics
 
     rng = np.random.default_rng(1)
     checker = SphereCollisionChecker.for_fetch(CollisionEnvironment(), CollisionCheckerConfig(motion_resolution=0.0))
@@ -246,3 +246,18 @@ def test_base_pose_exact_check_matches_is_free(room):
         np.testing.assert_array_equal(got, checker.is_free(Q))
         seen.append(got.mean())
     assert min(seen) < 0.5 < max(seen)
+
+
+def test_checker_and_sphere_model_compute_the_same_centres():
+    """Sphere centres are computed one way: the checker's, the sphere model's
+    and those from the link poses of `FetchKinematics` are the same bits."""
+    head = np.array([0.3, -0.2])
+    checker = SphereCollisionChecker.for_fetch(CollisionEnvironment(),
+                                               CollisionCheckerConfig(head_pan=head[0], head_tilt=head[1]))
+    model = SphereModel.load()
+    rng = np.random.default_rng(11)
+    Q = rng.uniform(layout.SAMPLE_LOWER, layout.SAMPLE_UPPER, (40, layout.NQ))
+    centres = checker.sphere_centers(Q)
+    np.testing.assert_array_equal(centres, model.world_spheres(Q, head=head))
+    X_WL = FetchKinematics.instance().link_poses(Q, head)
+    np.testing.assert_array_equal(centres, model.world_spheres(Q, link_poses=X_WL))
