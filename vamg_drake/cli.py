@@ -6,6 +6,8 @@
     vamg maps build            (kinematic maps)
     vamg bench --suite S --methods a,b [--seeds K] --out DIR [--workers N] [--backend local|ray] [--resume [--retry-errors]]
     vamg report DIR
+    vamg grasps collect --trials N --out DIR [--workers K] [--seed S]   (physics-labelled grasp trials)
+    vamg grasps train --data DIR [--out FILE]                             (the learned grasp-quality model)
 
 Bad input (a file, a field, an argument) ends the command with one line per
 problem naming the file and the field, and exit status 1, never a traceback.
@@ -26,6 +28,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from vamg_drake.bench.grasps_cli import add_grasps_subparser
 from vamg_drake.bench.methods import MethodError, load_methods
 from vamg_drake.bench.report import write_report
 from vamg_drake.bench.results import ResultsError
@@ -270,6 +273,7 @@ def build_parser() -> argparse.ArgumentParser:
     report.set_defaults(func=_cmd_report)
 
     add_maps_subparser(sub)
+    add_grasps_subparser(sub)
     return parser
 
 

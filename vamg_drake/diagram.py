@@ -44,6 +44,7 @@ from vamg_drake.perception.gaze import GazeConfig
 from vamg_drake.perception.raycast_map import RayCastMapConfig
 from vamg_drake.perception.seen_space import LookGateConfig, SeenSpaceConfig
 from vamg_drake.policy.behaviour_tree import BehaviourConfig
+from vamg_drake.policy.learned_grasps import GraspQualityModel
 from vamg_drake.policy.strategies import BEHAVIOURS, StrategyConfig
 from vamg_drake.policy.subgoal_pipeline import SubgoalPipelineConfig
 from vamg_drake.systems.depth_sampler import DepthSampler
@@ -143,6 +144,10 @@ class DiagramConfig:
         if self.policy == "full" and not self.world.enable_camera:
             raise ValueError("DiagramConfig.world.enable_camera: the full system needs the head camera")
         self.gaze.validate()
+        grasp_source = self.subgoal.grasp_source
+        grasp_source.validate("DiagramConfig.subgoal.grasp_source")
+        if grasp_source.source == "learned" and not grasp_source.fallback_to_geometric:
+            GraspQualityModel.load(grasp_source.model_path())  # GraspModelError names the file
 
 
 def load_diagram_config(path: str | Path, source: str | None = None, text: str | None = None) -> DiagramConfig:

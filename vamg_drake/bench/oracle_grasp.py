@@ -36,6 +36,7 @@ from pydrake.multibody.tree import FixedOffsetFrame, PdControllerGains, Prismati
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
+from vamg_drake.world.primitives import WorldPrimitive
 from vamg_drake.world.scenario import Scenario
 from vamg_drake.world.scene_geometry import SceneGeometryConfig, add_ycb_body, register_primitive
 from vamg_drake.world.ycb import load_ycb_asset
@@ -188,14 +189,27 @@ def _gripper_props(config: OracleGraspConfig) -> ProximityProperties:
 def _simulate(scenario: Scenario, name: str, candidate: GraspCandidate, config: OracleGraspConfig) -> tuple[bool, float, str]:
     obj = scenario.object(name)
     surfaces = {s.id: s for s in scenario.support_surfaces()}
+    support = surfaces[obj.support].primitive if obj.support in surfaces else None
+    return simulate_grasp(obj.model or name, RigidTransform(RollPitchYaw(obj.rpy), obj.xyz), support, candidate, config)
+
+
+def simulate_grasp(model: str, X_WO: RigidTransform, support: WorldPrimitive | None, candidate: GraspCandidate,
+                   config: OracleGraspConfig) -> tuple[bool, float, str]:
+    """Executes one grasp of YCB object ``model`` resting at X_WO on ``support``
+    (welded; None: no support) with the free gripper: approach from the
+    pre-grasp pose, close, retreat, lift and hold.
+
+    Returns:
+        (success, lift [m], reason it failed or "").
+    """
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=config.time_step, discrete_contact_approximation="sap"), builder)
     support_body = plant.AddRigidBody("support", SpatialInertia.SolidSphereWithMass(1.0, 0.1))
     plant.WeldFrames(plant.world_frame(), support_body.body_frame(), RigidTransform())
-    if obj.support in surfaces:
-        register_primitive(plant, support_body, surfaces[obj.support].primitive, RigidTransform(), (0.6, 0.5, 0.4, 1.0), config.geometry)
-    _, object_body = add_ycb_body(plant, name, config.geometry, obj.model)
-    plant.SetDefaultFloatingBaseBodyPose(object_body, RigidTransform(RollPitchYaw(obj.rpy), obj.xyz))
+    if support is not None:
+        register_primitive(plant, support_body, support, RigidTransform(), (0.6, 0.5, 0.4, 1.0), config.geometry)
+    _, object_body = add_ycb_body(plant, "object", config.geometry, model)
+    plant.SetDefaultFloatingBaseBodyPose(object_body, X_WO)
 
     gripper = plant.AddModelInstance("oracle_gripper")
     light = SpatialInertia.SolidSphereWithMass(0.05, 0.01)

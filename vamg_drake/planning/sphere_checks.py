@@ -261,7 +261,9 @@ def _self_free(T, C, data):
 def _config_free(Q, b, data):
     """Validity of configuration Q[b] for the checker tuple `data` (see
     `SphereCollisionChecker.base_pose_check_data`: scratch arrays T, C, PW, the
-    environment's AABBs and `near`, then `SphereCollisionChecker._args`). One tuple
+    environment's AABBs, `near` and the extended configuration V (head and
+    fingers set, in place of the head that `SphereCollisionChecker._args`
+    starts with), then the rest of `_args`). One tuple
     instead of ~45 array arguments: a compiled call costs ~20 ns per array
     argument (reference counting), as much as the check itself.
 
@@ -282,11 +284,11 @@ def _config_free(Q, b, data):
 
 @numba.njit(cache=True)
 def batch_free(Q, head, parent, X_PJ, joint_type, axis, var_index,
-                sph_link, sph_c, sph_r, sph_rs, pairs, q_lo, q_hi,
-                has_field, dist, origin, h, margin, pts, cell_keys, cell_start, tgt_c, tgt_r, sph_grip,
-                box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
-                prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere, lb_c, lb_r, pair_end, bp_end,
-                order, stop_at_first, out):
+               sph_link, sph_c, sph_r, sph_rs, pairs, q_lo, q_hi,
+               has_field, dist, origin, h, margin, pts, cell_keys, cell_start, tgt_c, tgt_r, sph_grip,
+               box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
+               prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere, lb_c, lb_r, pair_end, bp_end,
+               order, stop_at_first, out):
     """out[b] = config Q[b] free; visits rows in `order`; optional early exit.
 
     Returns the first row found in collision (in visiting order) or -1.
@@ -353,7 +355,7 @@ def _held_pose_free(x, y, th, data):
 
 
 @numba.njit(cache=True)
-def drive_free(poses, data, out):
+def held_poses_free(poses, data, out):
     """out[m] = configuration (poses[m] (x, y, theta), held torso + arm) is
     free, for a tuple of `SphereCollisionChecker.base_pose_check_data` on a planar
     base: self-collision and joint limits of the torso + arm were tested once

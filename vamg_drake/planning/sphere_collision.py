@@ -24,7 +24,7 @@ import numpy as np
 
 from vamg_drake.planning.collision_environment import CollisionEnvironment
 from vamg_drake.planning.self_collision_pruning import reachable_self_tests
-from vamg_drake.planning.sphere_checks import batch_free, drive_free, env_aabbs, held_spheres
+from vamg_drake.planning.sphere_checks import batch_free, env_aabbs, held_poses_free, held_spheres
 from vamg_drake.robot import kinematics, layout
 from vamg_drake.robot.kinematics import FetchKinematics
 from vamg_drake.robot.spheres import SphereModel, sphere_centres
@@ -138,7 +138,7 @@ class SphereCollisionChecker:
         self._body = self._body_arrays(body_primitives)
         if prune_self_tests:
             keep_pairs, keep_body = reachable_self_tests(tree, self.sph_link, self.sph_c, self.base_radius,
-                                                          self.pairs, self._body)
+                                                         self.pairs, self._body)
             self.pairs = np.ascontiguousarray(self.pairs[keep_pairs])
             link, kind, X, half, bp_prim, bp_sphere = self._body
             self._body = (link, kind, X, half, np.ascontiguousarray(bp_prim[keep_body]),
@@ -302,7 +302,7 @@ class SphereCollisionChecker:
         if not self._planar_base():
             return self.is_free(np.concatenate([poses, np.repeat(torso_arm[None], poses.shape[0], axis=0)], axis=1))
         out = np.zeros(poses.shape[0], dtype=np.bool_)
-        drive_free(poses, self.base_pose_check_data(torso_arm), out)
+        held_poses_free(poses, self.base_pose_check_data(torso_arm), out)
         return out
 
     def _planar_base(self) -> bool:

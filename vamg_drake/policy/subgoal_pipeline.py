@@ -1,8 +1,8 @@
 """The real subgoal samplers: grasp, pre-grasp and observe, wired to maps, IK and collision.
 
 `SubgoalPipeline` owns the kinematic maps, the IK, a `GraspCandidateSource`
-(the geometric `AntipodalGraspSampler` by default; a learned network plugs in
-here), the pre-grasp and observe samplers, and builds the collision check from
+(``config.grasp_source``: the geometric `AntipodalGraspSampler`, or its
+candidates re-ranked by the learned `LearnedGraspScorer`), the pre-grasp and observe samplers, and builds the collision check from
 the map points at each call. `SubgoalPipeline.samplers()` returns the
 `SubgoalSamplers` the behaviour tree calls.
 
@@ -35,10 +35,11 @@ from vamg_drake.planning.collision_environment import CollisionEnvironment
 from vamg_drake.planning.sphere_collision import CollisionCheckerConfig, SphereCollisionChecker
 from vamg_drake.policy.arm_chain import base_poses
 from vamg_drake.policy.behaviour_tree import FailureCategory, PolicyInputs, SubgoalProposal, SubgoalSamplers
-from vamg_drake.policy.grasp_candidates import AntipodalGraspConfig, AntipodalGraspSampler, GraspCandidates, GraspCandidateSource
+from vamg_drake.policy.grasp_candidates import AntipodalGraspConfig, GraspCandidates, GraspCandidateSource
 from vamg_drake.policy.grasp_ranking import GraspRankingConfig, pose_distance, pregrasp_poses, select_grasp_goal
 from vamg_drake.policy.ik import FastIk
 from vamg_drake.policy.kinematic_maps import KinematicMaps
+from vamg_drake.policy.learned_grasps import GraspSourceConfig, make_grasp_source
 from vamg_drake.policy.observe_sampler import ObserveConfig, ObserveSampler
 from vamg_drake.policy.pregrasp_sampler import BaseCostmap, PregraspConfig, PregraspSampler
 from vamg_drake.policy.visibility import TargetVisibility
@@ -57,6 +58,9 @@ class SubgoalPipelineConfig:
     observe: ObserveConfig = dc.field(default_factory=ObserveConfig)
     #: The geometric grasp candidate source (used unless another source is given).
     grasps: AntipodalGraspConfig = dc.field(default_factory=AntipodalGraspConfig)
+    #: Which source ranks the grasps: the geometric one, or its candidates
+    #: re-ranked by the learned grasp-quality model (`vamg_drake.policy.learned_grasps`).
+    grasp_source: GraspSourceConfig = dc.field(default_factory=GraspSourceConfig)
     #: Distance field resolution of the collision environment [m].
     collision_resolution: float = 0.03
     #: Map points within this horizontal distance of the target (or the robot) are obstacles [m].
@@ -125,7 +129,7 @@ class SubgoalPipeline:
         #: Optional `vamg_drake.systems.timing.ModuleTimings` (grasp candidates, samplers).
         self.timings = timings
         self.maps = maps
-        self.grasp_source = grasp_source or AntipodalGraspSampler(self.config.grasps)
+        self.grasp_source = grasp_source or make_grasp_source(self.config.grasp_source, self.config.grasps)
         self.ik = FastIk()
         self.visibility = TargetVisibility()
         self.pregrasp = PregraspSampler(maps, self.ik, self.visibility, self.config.pregrasp)

@@ -1,0 +1,129 @@
+"""The learned grasp-quality model on held-out objects, beside the geometric ranking, and its speed.
+
+Quality: the model file (default: the committed ``models/grasp_quality.npz``)
+scores every executed candidate of the held-out objects' trials in a grasp-
+trial directory (`vamg grasps collect`; default ``$VAMG_GRASP_DATA``). The
+objects are held out by object: the model never saw them. Reported beside the
+geometric source's own ranking of the same candidates:
+
+* ``auc_heldout`` / ``geometric_auc_heldout``: ROC AUC of the model's
+  probability / of the geometric score against the physics outcome;
+* ``top1_precision_heldout`` / ``geometric_top1_precision_heldout``: the
+  success rate of the candidate each ranks first in each scene, among the
+  candidates executed there (the geometric source's first choice is always
+  executed).
+
+Speed (seeded, no data needed): ``inference_ms_256`` is `LearnedGraspScorer.score`
+for 256 geometric candidates on a can-on-a-table cloud (the grasp-frame crops
+and the NumPy forward pass: what re-ranking adds to the geometric source's
+``propose``), median of ``--repeats``; the torch forward pass of the same
+weights is the reference in the same run (``torch_forward_ms_256``).
+
+Usage: python benchmarks/bench_grasp_model.py [--json] [--data DIR] [--model FILE] [--repeats R]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from vamg_drake.bench.grasp_trials import load_dataset
+from vamg_drake.bench.grasp_training import GraspQualityNet, evaluate, torch_logits
+from vamg_drake.testing import synthetic_clouds as clouds
+from vamg_drake.policy.grasp_candidates import AntipodalGraspConfig, AntipodalGraspSampler
+from vamg_drake.policy.learned_grasps import (
+    DEFAULT_MODEL_PATH,
+    GraspQualityModel,
+    LearnedGraspScorer,
+    candidate_features,
+    grasp_frame_crops,
+)
+
+
+def _torch_net(model: GraspQualityModel) -> GraspQualityNet:
+    net = GraspQualityNet([W.shape[0] for W, _ in model.point_layers], [W.shape[0] for W, _ in model.head_layers[:-1]])
+    with torch.no_grad():
+        for layer, (W, b) in zip([*net.point, *net.head, net.skip], [*model.point_layers, *model.head_layers, model.skip]):
+            layer.weight.copy_(torch.from_numpy(W))
+            layer.bias.copy_(torch.from_numpy(b))
+    return net.eval()
+
+
+def speed(model: GraspQualityModel, repeats: int) -> dict:
+    center = np.array([1.0, 0.0, 0.7])
+    cloud = np.concatenate([clouds.table_top_cloud(z=center[2], center_xy=center[:2], size=0.6),
+                            clouds.can_cloud(center=center, noise=0.001, seed=1)])
+    geometric = AntipodalGraspSampler(AntipodalGraspConfig())
+    candidates = geometric.propose(cloud, center + [0.0, 0.0, 0.06], np.random.default_rng(0))
+    candidates = candidates.subset(np.arange(256) % len(candidates))
+    scorer = LearnedGraspScorer(model, geometric)
+    crops, _ = grasp_frame_crops(cloud, candidates.X_WG, model.crop)
+    features = candidate_features(candidates.X_WG, candidates.width, candidates.score)
+    net = _torch_net(model)
+    torch.set_num_threads(1)
+
+    def median_ms(fn) -> float:
+        fn()
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - t0)
+        return 1e3 * float(np.median(times))
+
+    p1, p2 = scorer.score(cloud, candidates), scorer.score(cloud, candidates)
+    return {
+        "inference_ms_256": round(median_ms(lambda: scorer.score(cloud, candidates)), 3),
+        "forward_ms_256": round(median_ms(lambda: model.predict(crops, features)), 3),
+        "torch_forward_ms_256": round(median_ms(lambda: torch_logits(net, crops, features)), 3),
+        "crop_ms_256": round(median_ms(lambda: grasp_frame_crops(cloud, candidates.X_WG, model.crop)), 3),
+        "geometric_propose_ms": round(median_ms(lambda: geometric.propose(cloud, center + [0, 0, 0.06],
+                                                                          np.random.default_rng(0))), 3),
+        "inference_deterministic": bool(np.array_equal(p1, p2)),
+        "numpy_torch_max_abs_logit_diff": float(np.max(np.abs(model.logits(crops, features)
+                                                              - torch_logits(net, crops, features)))),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true")
+    parser.add_argument("--data", default=os.environ.get("VAMG_GRASP_DATA", ""),
+                        help="grasp-trial directory (default $VAMG_GRASP_DATA)")
+    parser.add_argument("--model", default=str(DEFAULT_MODEL_PATH))
+    parser.add_argument("--repeats", type=int, default=20)
+    args = parser.parse_args()
+    model = GraspQualityModel.load(args.model)
+    result: dict = {"model": str(Path(args.model).name), "model_data_digest": model.metadata.get("data_digest")}
+    if args.data:
+        data = load_dataset(args.data)
+        heldout = data.subset(data.heldout)
+        metrics = evaluate(model, heldout)
+        result.update({
+            "data_digest": data.digest, "same_data_as_model": data.digest == model.metadata.get("data_digest"),
+            "trials": int(len(np.unique(data.trial))), "samples": len(data),
+            "samples_heldout": metrics["samples"], "scenes_heldout": metrics["scenes"],
+            "heldout_objects": sorted(set(heldout.objects.tolist())),
+            "success_rate_heldout": round(metrics["success_rate"], 4),
+            "auc_heldout": round(metrics["auc"], 4),
+            "top1_precision_heldout": round(metrics["top1_precision"], 4),
+            "geometric_auc_heldout": round(metrics["geometric_auc"], 4),
+            "geometric_top1_precision_heldout": round(metrics["geometric_top1_precision"], 4),
+        })
+    else:
+        result["quality"] = "skipped: no --data (or $VAMG_GRASP_DATA) grasp-trial directory"
+    result.update(speed(model, args.repeats))
+    if not args.json:
+        for k, v in result.items():
+            print(f"{k:36s} {v}")
+    print(json.dumps(result))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,186 @@
+"""The learned grasp-quality scorer: physics-labelled trials, training, the
+NumPy inference of the exported network, and the grasp-source selection."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vamg_drake.bench.grasp_trials import (
+    GraspDataset,
+    GraspTrialConfig,
+    TrialResult,
+    collect,
+    load_dataset,
+    run_trial,
+)
+from vamg_drake.bench.grasp_training import (
+    GraspTrainingConfig,
+    export,
+    roc_auc,
+    top1_precision,
+    torch_logits,
+    train,
+    train_model,
+)
+from vamg_drake.config_validation import InputError
+from vamg_drake.diagram import load_diagram_config
+from vamg_drake.testing import synthetic_clouds as clouds
+from vamg_drake.policy.grasp_candidates import AntipodalGraspConfig, AntipodalGraspSampler
+from vamg_drake.policy.learned_grasps import (
+    DEFAULT_MODEL_PATH,
+    GraspCropConfig,
+    GraspModelError,
+    GraspQualityModel,
+    GraspSourceConfig,
+    LearnedGraspScorer,
+    candidate_features,
+    grasp_frame_crops,
+    make_grasp_source,
+)
+
+CENTER = np.array([1.0, 0.0, 0.7])
+
+#: A trial whose executed candidates both hold and drop the object (found by
+#: running the collector; the labels come from Drake's deterministic physics).
+MIXED_TRIAL = dict(index=0, seed=0, object_name="tomato_soup_can")
+
+
+def _scene() -> np.ndarray:
+    return np.concatenate([clouds.table_top_cloud(z=CENTER[2], center_xy=CENTER[:2], size=0.6),
+                           clouds.can_cloud(center=CENTER, noise=0.001, seed=1)])
+
+
+def _synthetic_dataset(n: int = 96, seed: int = 0) -> GraspDataset:
+    """Crops whose label is whether every point lies between the fingers
+    (|y| < 0.35 in crop units) or some lie where a finger closes: a rule the
+    network can learn in a few epochs."""
+    rng = np.random.default_rng(seed)
+    crops = rng.uniform(-1, 1, (n, 32, 3)).astype(np.float32)
+    success = rng.uniform(size=n) < 0.5
+    crops[success, :, 1] *= 0.35
+    X_WG = np.repeat(np.eye(4)[None], n, axis=0)
+    return GraspDataset(crops, X_WG, rng.uniform(0.02, 0.08, n), rng.uniform(0, 1, n), success,
+                        np.arange(n) // 4, np.arange(n) % 4, np.array(["a"] * n), np.arange(n) % 3 == 0, "synthetic")
+
+
+def test_collector_labels_grasps_with_both_outcomes(tmp_path: Path) -> None:
+    """A fixed-seed trial: the object dropped on the support, the rendered
+    partial cloud, the geometric candidates executed in Drake -- some hold the
+    object, some do not; the trial file round-trips and the collector resumes
+    from it (the trial present is not run again)."""
+    config = GraspTrialConfig(objects=[MIXED_TRIAL["object_name"]], heldout=[], candidates_per_trial=6, top_k=2)
+    result = run_trial(MIXED_TRIAL["index"], MIXED_TRIAL["seed"], config)
+    assert result.reason == ""
+    assert result.object_name == MIXED_TRIAL["object_name"]
+    assert len(result.success) == 6
+    assert result.success.any() and not result.success.all(), result.success
+    assert result.crops.shape == (6, config.crop.num_points, 3)
+    assert np.all(result.crop_counts > 0)
+    assert np.all(np.abs(result.crops) <= 1.0 + 1e-6)  # G-frame crop within the radius
+    assert result.rank[0] == 0  # the geometric source's first choice is always executed
+
+    result.save(tmp_path / "trial_00000.npz")
+    manifest = collect(tmp_path, trials=2, seed=0, config=config, progress=False, time_budget=0.0)
+    assert manifest["num_trials"] == 1 and manifest["num_samples"] == 6  # trial 0 kept, trial 1 not started
+    data = load_dataset(tmp_path)
+    np.testing.assert_array_equal(data.success, result.success)
+    assert json.loads((tmp_path / "manifest.json").read_text())["seed"] == 0
+    with pytest.raises(ValueError, match="manifest.json"):
+        collect(tmp_path, trials=2, seed=1, config=config, progress=False, time_budget=0.0)
+
+
+def test_a_few_training_epochs_reduce_the_loss() -> None:
+    data = _synthetic_dataset()
+    config = GraspTrainingConfig(point_layers=[16, 32], head_layers=[16], epochs=40, batch_size=16, learning_rate=1e-2)
+    _, history = train(data, config)
+    assert history[-1] < 0.5 * history[0], history
+
+
+def test_training_is_seeded_and_the_numpy_model_matches_torch(tmp_path: Path) -> None:
+    data = _synthetic_dataset()
+    config = GraspTrainingConfig(point_layers=[16, 32], head_layers=[16], epochs=3)
+    net_a, hist_a = train(data, config)
+    net_b, hist_b = train(data, config)
+    assert hist_a == hist_b
+    features = candidate_features(data.X_WG, data.width, data.score)
+    model = export(net_a, GraspCropConfig(num_points=32), {"note": "test"})
+    np.testing.assert_allclose(model.logits(data.crops, features), torch_logits(net_a, data.crops, features),
+                               rtol=1e-4, atol=1e-5)
+    model.save(tmp_path / "m.npz")
+    loaded = GraspQualityModel.load(tmp_path / "m.npz")
+    np.testing.assert_array_equal(loaded.predict(data.crops, features), model.predict(data.crops, features))
+    assert loaded.metadata == {"note": "test"}
+
+
+def test_train_model_records_its_provenance_and_heldout_metrics() -> None:
+    data = _synthetic_dataset()
+    model, metrics = train_model(data, GraspTrainingConfig(point_layers=[16], head_layers=[8], epochs=2))
+    assert model.metadata["data_digest"] == "synthetic"
+    assert model.metadata["heldout_samples"] == int(data.heldout.sum())
+    assert set(metrics["heldout"]) >= {"auc", "top1_precision", "geometric_auc", "geometric_top1_precision"}
+
+
+def test_metrics() -> None:
+    assert roc_auc(np.array([0.1, 0.4, 0.35, 0.8]), np.array([0, 0, 1, 1])) == pytest.approx(0.75)
+    assert top1_precision(np.array([0.9, 0.1, 0.2, 0.7]), np.array([1, 0, 0, 0]), np.array([0, 0, 1, 1])) == 0.5
+
+
+def test_learned_scorer_reranks_the_geometric_candidates_deterministically() -> None:
+    cloud, target = _scene(), CENTER + [0.0, 0.0, 0.06]
+    model = GraspQualityModel.load(DEFAULT_MODEL_PATH)
+    geometric = AntipodalGraspSampler(AntipodalGraspConfig())
+    scorer = LearnedGraspScorer(model, geometric)
+    a = scorer.propose(cloud, target, np.random.default_rng(3))
+    b = scorer.propose(cloud, target, np.random.default_rng(3))
+    base = geometric.propose(cloud, target, np.random.default_rng(3))
+    assert len(a) == len(base) > 0
+    np.testing.assert_array_equal(a.score, b.score)
+    np.testing.assert_array_equal(a.X_WG, b.X_WG)
+    assert np.all(np.diff(a.score) <= 0) and np.all((a.score >= 0) & (a.score <= 1))
+    # The same set of grasps, reordered.
+    key = lambda c: sorted(map(tuple, np.round(c.X_WG[:, :3, 3], 9)))  # noqa: E731
+    assert key(a) == key(base)
+
+
+def test_grasp_frame_crops_are_in_the_grasp_frame() -> None:
+    X_WG = np.eye(4)
+    X_WG[:3, :3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]
+    X_WG[:3, 3] = [1.0, 2.0, 3.0]
+    p_WS = np.array([[1.0, 2.05, 3.0], [5.0, 5.0, 5.0]])  # +5 cm along G's x; and far away
+    crops, counts = grasp_frame_crops(p_WS, X_WG[None], GraspCropConfig(radius=0.1, num_points=4))
+    assert counts.tolist() == [1]
+    np.testing.assert_allclose(crops[0], np.tile([0.5, 0.0, 0.0], (4, 1)), atol=1e-6)
+
+
+def test_a_missing_or_corrupt_model_file_is_a_clear_error(tmp_path: Path) -> None:
+    missing = tmp_path / "none.npz"
+    with pytest.raises(GraspModelError, match=str(missing)):
+        GraspQualityModel.load(missing)
+    corrupt = tmp_path / "corrupt.npz"
+    corrupt.write_bytes(b"PK\x03\x04 not really a zip")
+    with pytest.raises(GraspModelError, match="corrupt.npz: not a readable"):
+        GraspQualityModel.load(corrupt)
+    with pytest.raises(GraspModelError, match=str(missing)):
+        make_grasp_source(GraspSourceConfig(source="learned", model=str(missing)), AntipodalGraspConfig())
+    # Only when the configuration asks for it does a missing model fall back.
+    source = make_grasp_source(GraspSourceConfig(source="learned", model=str(missing), fallback_to_geometric=True),
+                               AntipodalGraspConfig())
+    assert isinstance(source, AntipodalGraspSampler)
+    assert isinstance(make_grasp_source(GraspSourceConfig(source="learned"), AntipodalGraspConfig()),
+                      LearnedGraspScorer)
+
+
+def test_method_yaml_selects_the_grasp_source(tmp_path: Path) -> None:
+    method = tmp_path / "m.yaml"
+    method.write_text(f"subgoal: {{grasp_source: {{source: learned, model: {tmp_path / 'gone.npz'}}}}}\n")
+    with pytest.raises(InputError, match=r"m\.yaml: .*gone\.npz: grasp-quality model file not found"):
+        load_diagram_config(method)
+    method.write_text("subgoal: {grasp_source: {source: neural}}\n")
+    with pytest.raises(InputError, match=r"subgoal\.grasp_source\.source: unknown grasp source 'neural'"):
+        load_diagram_config(method)
+    shipped = Path(__file__).parents[1] / "vamg_drake" / "bench" / "methods" / "full_learned_grasps.yaml"
+    assert load_diagram_config(shipped).subgoal.grasp_source.source == "learned"
