@@ -7,12 +7,12 @@ when the paper authors' task file and the ReplicaCAD apartments are found
 (``$VAMG_PAPER_TASKS``, ``$VAMG_REPLICACAD_DIR``), the first ``--paper-tasks``
 tasks of the file's second scene, imported with all 20 objects. Each
 scenario runs twice: every object awake (the reference) and with the
-objects away from the target asleep (``ClutterSleep``), as the episode runner
-does.
+objects away from the target built asleep (anchored geometry,
+``WorldConfig.clutter_sleep``), as episodes are.
 
 Reports per scenario and as medians: wall time per simulated second for both,
-the speed-up, the largest displacement of any non-target object over the run
-(sleeping objects must not move; awake ones may creep on convex furniture),
+the speed-up, the largest displacement of any free non-target object over
+the run (awake ones may creep on convex furniture; sleeping ones are anchored),
 and whether the robot's base ended at the same pose (the scripted driver
 ignores the clutter, so it must).
 
@@ -30,19 +30,18 @@ from pydrake.systems.analysis import Simulator
 
 from vamg_drake.diagram import DiagramConfig, build_diagram
 from vamg_drake.scenarios import DEMO_SCENARIO
-from vamg_drake.world.clutter_sleep import ClutterSleep
 from vamg_drake.world.scenario import load_scenario
 
 
 def step(scenario, sim_time: float, sleep: bool) -> dict:
-    """Steps one world; returns wall ms per sim second, clutter drift and the final base pose."""
+    """Steps one world; returns wall ms per sim second, the awake clutter's drift and the final base pose."""
     config = DiagramConfig(policy="scripted")
     config.world.enable_camera = False
+    config.world.clutter_sleep.enabled = sleep
     ed = build_diagram(scenario, config)
     simulator = Simulator(ed.diagram)
     simulator.Initialize()
     context = simulator.get_mutable_context()
-    asleep = ClutterSleep(ed.world).sleep(context) if sleep else []
     plant = ed.world.plant
     plant_context = plant.GetMyContextFromRoot(context)
     clutter = {n: b for n, b in ed.world.scene.object_bodies.items() if n != scenario.target}
@@ -55,7 +54,7 @@ def step(scenario, sim_time: float, sleep: bool) -> dict:
                 default=0.0)
     base = ed.robot_state.GetOutputPort("configuration").Eval(ed.robot_state.GetMyContextFromRoot(context))[:3]
     return {"ms_per_sim_s": 1e3 * wall / sim_time, "max_drift_mm": 1e3 * float(drift), "base": base.copy(),
-            "objects": len(ed.world.scene.object_bodies), "asleep": len(asleep)}
+            "objects": len(scenario.objects), "asleep": len(ed.world.scene.asleep)}
 
 
 def scenarios(paper_tasks: int) -> list:

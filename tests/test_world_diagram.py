@@ -7,6 +7,7 @@ from pydrake.systems.analysis import Simulator
 from scenes import box_room_scenario, table
 from vamg_drake.diagram import DiagramConfig, build_diagram
 from vamg_drake.robot.kinematics import FetchKinematics
+from vamg_drake.world.clutter_sleep import ClutterSleepConfig
 from vamg_drake.world.episode_monitor import COLLISION, PLANNING, RUNNING, SUCCESS, Contact, EpisodeJudge
 from vamg_drake.world.scenario import Box, Furniture, Part, PlanarPose
 
@@ -178,24 +179,43 @@ def _two_object_room():
 
 
 @pytest.mark.parametrize("awake_radius, asleep", [(0.2, True), (0.5, False)])
-def test_clutter_away_from_the_target_sleeps_in_place(awake_radius, asleep):
-    from vamg_drake.world.clutter_sleep import ClutterSleep, ClutterSleepConfig
-
-    ed = build_diagram(_two_object_room(), DiagramConfig(policy="scripted"))
+def test_clutter_away_from_the_target_is_built_asleep(awake_radius, asleep):
+    config = DiagramConfig(policy="scripted")
+    config.world.clutter_sleep = ClutterSleepConfig(awake_radius=awake_radius)
+    ed = build_diagram(_two_object_room(), config)
+    scene = ed.world.scene
+    assert scene.asleep == (["mug"] if asleep else [])  # the mug is 0.3 m from the target, which never sleeps
+    plant = ed.world.plant
+    if asleep:
+        with pytest.raises(KeyError, match="asleep"):
+            scene.object_body("mug")
+        # Anchored at its pose, owned by name, so a robot touching it is reported as touching the mug.
+        inspector = ed.world.scene_graph.model_inspector()
+        (gid,) = [g for g, name in scene.static_geometry_owner.items() if name == "mug"]
+        assert inspector.GetFrameId(gid) == inspector.world_frame_id()
+        assert np.allclose(inspector.GetPoseInFrame(gid).translation(), [2.0, 0.3, 0.80])
+        return
     sim = Simulator(ed.diagram)
     sim.Initialize()
     context = sim.get_mutable_context()
-    plant = ed.world.plant
-    mug = ed.world.scene.object_bodies["mug"]
-    # Lift the mug (0.3 m from the target) 5 cm: asleep it stays in the air, awake it falls back onto the table.
+    mug = scene.object_body("mug")
+    # Lift the awake mug 5 cm: it falls back onto the table.
     X = plant.EvalBodyPoseInWorld(plant.GetMyContextFromRoot(context), mug)
     X.set_translation(X.translation() + [0, 0, 0.05])
     plant.SetFreeBodyPose(plant.GetMyMutableContextFromRoot(context), mug, X)
-    names = ClutterSleep(ed.world, ClutterSleepConfig(awake_radius=awake_radius)).sleep(context)
-    assert names == (["mug"] if asleep else [])  # the target never sleeps
     sim.AdvanceTo(1.0)
     z = plant.EvalBodyPoseInWorld(plant.GetMyContextFromRoot(context), mug).translation()[2]
-    if asleep:
-        assert z == pytest.approx(X.translation()[2], abs=1e-9)
-    else:
-        assert X.translation()[2] - 0.065 < z < X.translation()[2] - 0.035
+    assert X.translation()[2] - 0.065 < z < X.translation()[2] - 0.035
+
+
+def test_static_scene_collision_geometry_is_anchored_and_named():
+    """Floor, walls and furniture collide as anchored geometry (no broad-phase
+    cost per step) and keep their part names for the monitor's reports."""
+    ed = build_diagram(_two_object_room(), DiagramConfig(policy="scripted"))
+    inspector = ed.world.scene_graph.model_inspector()
+    owner = ed.world.scene.static_geometry_owner
+    assert {"floor", "walls", "table_0"} <= set(owner.values())
+    assert all(inspector.GetFrameId(g) == inspector.world_frame_id() for g in owner)
+    plant = ed.world.plant
+    for b in plant.GetBodyIndices(ed.world.scene.scene_instance):
+        assert not plant.GetCollisionGeometriesForBody(plant.get_body(b))

@@ -247,6 +247,7 @@ def _filter_obstacles_against_scene(world: World) -> None:
     plant = world.plant
     scene_geoms = [g for b in plant.GetBodyIndices(world.scene.scene_instance)
                    for g in plant.GetCollisionGeometriesForBody(plant.get_body(b))]
+    scene_geoms += list(world.scene.static_geometry_owner)  # anchored on the world body
     for handle in world.scene.obstacles.values():
         geoms = plant.GetCollisionGeometriesForBody(handle.body)
         world.scene_graph.collision_filter_manager().Apply(

@@ -30,7 +30,6 @@ from tqdm import tqdm
 
 from vamg_drake.diagram import DiagramConfig, build_diagram
 from vamg_drake.provenance import atomic_write_text, provenance
-from vamg_drake.world.clutter_sleep import ClutterSleep
 from vamg_drake.world.episode_monitor import PLANNING, EpisodeOutcome
 from vamg_drake.world.scenario import Scenario
 from vamg_drake.world.topdown import plot_topdown
@@ -148,7 +147,6 @@ def _run(scenario: Scenario, config: DiagramConfig, out: Path | None, record: bo
     if ed.visualizer is not None:
         ed.visualizer.StartRecording(set_transforms_while_recording=False)
     robot_ctx = ed.robot_state.GetMyContextFromRoot(context)
-    clutter = ClutterSleep(ed.world, config.world.clutter_sleep)
     monitor_ctx = ed.monitor.GetMyContextFromRoot(context)
     path = []
     wall0 = time.perf_counter()
@@ -163,7 +161,6 @@ def _run(scenario: Scenario, config: DiagramConfig, out: Path | None, record: bo
     outcome = EpisodeOutcome()
     try:
         simulator.Initialize()
-        clutter.sleep(context)
         while context.get_time() < t_end:
             t_next = min(context.get_time() + chunk, t_end)
             status = simulator.AdvanceTo(t_next)

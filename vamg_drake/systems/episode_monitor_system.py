@@ -54,7 +54,7 @@ class EpisodeMonitor(LeafSystem):
             body = plant.GetBodyFromFrameId(inspector.GetFrameId(gid))
             if body is None:
                 continue
-            self._names[gid] = body.name()
+            self._names[gid] = world.scene.static_geometry_owner.get(gid, body.name())
             self._owner_is_robot[gid] = body.model_instance() == world.robot
             self._owner_is_target[gid] = body.index() == target.index()
         self._query_port = self.DeclareAbstractInputPort("query_object", AbstractValue.Make(QueryObject()))

@@ -763,7 +763,8 @@ def load_replicacad_layout(
 # ------------------------------------------------------------------ plant
 
 
-def register_replicacad(plant, instance, layout: ReplicaCadLayout, proximity, visuals: bool = True) -> dict[str, object]:
+def register_replicacad(plant, instance, layout: ReplicaCadLayout, proximity, visuals: bool = True,
+                        anchored_owner: dict | None = None) -> dict[str, object]:
     """Adds a loaded layout's bodies (welded) to ``plant`` in model instance ``instance``.
 
     Visual meshes get the illustration and perception roles (the depth camera
@@ -772,6 +773,14 @@ def register_replicacad(plant, instance, layout: ReplicaCadLayout, proximity, vi
     The navmesh walls are not added here (``add_scene`` adds them with the
     room's walls). Call before ``plant.Finalize()``. ``visuals=False`` adds
     collision geometry only.
+
+    With ``anchored_owner`` (a dict), the collision pieces are registered on the
+    world body instead, at the same poses, and ``anchored_owner`` maps each
+    piece's GeometryId to its body's name. SceneGraph treats geometry of the
+    world body as anchored: it never enters the broad phase of the moving
+    geometry, whereas the ~1,300 pieces of an apartment on welded bodies are
+    "dynamic" and cost tens of milliseconds per contact query (measured:
+    ``benchmarks/bench_episode.py``).
 
     Returns:
         body name -> RigidBody.
@@ -798,6 +807,12 @@ def register_replicacad(plant, instance, layout: ReplicaCadLayout, proximity, vi
             shape = Convex(np.ascontiguousarray(points.T), f"{body_spec.name}/{k}")
             if visuals and not body_spec.visuals:
                 plant.RegisterVisualGeometry(body, RigidTransform(), shape, f"{body_spec.name}/proxy_{k}", gray)
-            if not body_spec.floor_covering:
+            if body_spec.floor_covering:
+                continue
+            if anchored_owner is None:
                 plant.RegisterCollisionGeometry(body, RigidTransform(), shape, f"{body_spec.name}/{k}", ProximityProperties(proximity))
+            else:
+                gid = plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(body_spec.X_WB), shape,
+                                                      f"{body_spec.name}/{k}", ProximityProperties(proximity))
+                anchored_owner[gid] = body_spec.name
     return bodies

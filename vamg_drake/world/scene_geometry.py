@@ -34,6 +34,7 @@ from pydrake.geometry import (
     Box as DrakeBox,
     Convex,
     Cylinder as DrakeCylinder,
+    GeometryId,
     Mesh,
     ProximityProperties,
 )
@@ -48,6 +49,7 @@ from pydrake.multibody.tree import (
     UnitInertia,
 )
 
+from vamg_drake.world.clutter_sleep import ClutterSleepConfig, sleeping_objects
 from vamg_drake.world.primitives import WorldBox, WorldPrimitive
 from vamg_drake.world.replicacad import register_replicacad
 from vamg_drake.world.scenario import (
@@ -143,6 +145,11 @@ class SceneHandles:
         support_heights: support surface id -> height of its top [m].
         static_shapes: walls and furniture as world primitives.
         floor: the floor box.
+        static_geometry_owner: GeometryId of each anchored collision
+            geometry (floor, walls, furniture, sleeping objects) -> the name
+            of the part or object it belongs to.
+        asleep: the objects built as anchored geometry (``clutter_sleep``);
+            they have no body.
     """
 
     scene_instance: ModelInstanceIndex
@@ -152,11 +159,14 @@ class SceneHandles:
     support_heights: dict[str, float]
     static_shapes: list[WorldPrimitive]
     floor: WorldBox = field(repr=False)
+    static_geometry_owner: dict = field(default_factory=dict, repr=False)
+    asleep: list[str] = field(default_factory=list)
 
     def object_body(self, name: str) -> RigidBody:
         """Returns the body of a YCB object (KeyError naming the known ones)."""
         if name not in self.object_bodies:
-            raise KeyError(f"no object {name!r} (have: {', '.join(self.object_bodies)})")
+            why = " (asleep: anchored, no body)" if name in self.asleep else ""
+            raise KeyError(f"no object body {name!r}{why} (have: {', '.join(self.object_bodies)})")
         return self.object_bodies[name]
 
 
@@ -187,11 +197,15 @@ def register_primitive(
     X_WB: RigidTransform,
     rgba: tuple[float, ...],
     config: SceneGeometryConfig,
+    anchored_owner: dict | None = None,
 ) -> None:
     """Registers collision + visual geometry of a world primitive on ``body``.
 
     Args:
         X_WB: the body's pose in W (identity for world-welded bodies).
+        anchored_owner: if given, the collision geometry goes on the world body
+            (anchored: no broad-phase cost, see ``register_replicacad``) and
+            this dict maps its GeometryId to ``body``'s name.
     """
     if isinstance(primitive, WorldBox):
         shape = DrakeBox(*(2.0 * primitive.half_extents))
@@ -200,7 +214,11 @@ def register_primitive(
         shape = DrakeCylinder(primitive.radius, primitive.length)
         X_WG = RigidTransform(RotationMatrix(primitive.R_WC), primitive.p_WC)
     X_BG = X_WB.inverse() @ X_WG
-    plant.RegisterCollisionGeometry(body, X_BG, shape, primitive.name, _proximity(config, False, 0.05))
+    if anchored_owner is None:
+        plant.RegisterCollisionGeometry(body, X_BG, shape, primitive.name, _proximity(config, False, 0.05))
+    else:
+        gid = plant.RegisterCollisionGeometry(plant.world_body(), X_WG, shape, primitive.name, _proximity(config, False, 0.05))
+        anchored_owner[gid] = body.name()
     plant.RegisterVisualGeometry(body, X_BG, shape, primitive.name, np.asarray(rgba, dtype=float))
 
 
@@ -220,9 +238,26 @@ def add_ycb_body(
     body = plant.AddRigidBody(name, instance, inertia)
     props = _proximity(config, True, 0.01)
     plant.RegisterCollisionGeometry(body, RigidTransform(), Convex(str(asset.collision_path)), name, props)
-    rgb = _OBJECT_PALETTE[list(YCB_MODELS).index(model) % len(_OBJECT_PALETTE)]
-    plant.RegisterVisualGeometry(body, RigidTransform(), Mesh(str(asset.visual_path)), name, np.array([*rgb, 1.0]))
+    plant.RegisterVisualGeometry(body, RigidTransform(), Mesh(str(asset.visual_path)), name, _object_rgba(model))
     return instance, body
+
+
+def _object_rgba(model: str) -> np.ndarray:
+    return np.array([*_OBJECT_PALETTE[list(YCB_MODELS).index(model) % len(_OBJECT_PALETTE)], 1.0])
+
+
+def add_sleeping_ycb_object(
+    plant: MultibodyPlant, name: str, X_WO: RigidTransform, config: SceneGeometryConfig, model: str = "",
+) -> GeometryId:
+    """Adds YCB model ``model`` (default: ``name``) as anchored geometry at ``X_WO``
+    (``clutter_sleep``: the same shapes and contact properties as the free
+    body of ``add_ycb_body``, held still); returns its collision GeometryId."""
+    model = model or name
+    asset = load_ycb_asset(model)
+    gid = plant.RegisterCollisionGeometry(plant.world_body(), X_WO, Convex(str(asset.collision_path)), name,
+                                          _proximity(config, True, 0.01))
+    plant.RegisterVisualGeometry(plant.world_body(), X_WO, Mesh(str(asset.visual_path)), name, _object_rgba(model))
+    return gid
 
 
 def _add_obstacle(
@@ -262,9 +297,14 @@ def _add_obstacle(
 
 
 def add_scene(
-    plant: MultibodyPlant, scenario: Scenario, config: SceneGeometryConfig | None = None
+    plant: MultibodyPlant, scenario: Scenario, config: SceneGeometryConfig | None = None,
+    clutter_sleep: ClutterSleepConfig | None = None,
 ) -> SceneHandles:
     """Adds the scenario's room, furniture, objects and obstacles to ``plant``.
+
+    The static scene's collision geometry is anchored; with ``clutter_sleep``,
+    the objects it names (``sleeping_objects``) are too, the rest are free
+    bodies (None: every object is a free body).
 
     Call before ``plant.Finalize()``. The plant must be discrete (SAP) for the
     obstacles' PD-controlled actuators.
@@ -289,27 +329,35 @@ def add_scene(
         np.array([*(0.5 * (hi - lo)), 0.5 * config.floor_thickness]),
     )
     I_W = RigidTransform()
+    # The static scene's collision geometry is anchored (on the world body);
+    # its owners' names are kept for the episode monitor's reports.
+    owner: dict = {}
     floor_body = welded_body("floor", I_W)
-    register_primitive(plant, floor_body, floor, I_W, _FLOOR_RGBA, config)
+    register_primitive(plant, floor_body, floor, I_W, _FLOOR_RGBA, config, owner)
     walls_body = welded_body("walls", I_W)
     for wall in scenario.room.wall_primitives():
-        register_primitive(plant, walls_body, wall, I_W, _WALL_RGBA, config)
+        register_primitive(plant, walls_body, wall, I_W, _WALL_RGBA, config, owner)
     for furniture in scenario.furniture:
         p_WF, R_WF = furniture.X_WF()
         X_WF = RigidTransform(RotationMatrix(R_WF), p_WF)
         body = welded_body(furniture.name, X_WF)
         for part, primitive in zip(furniture.parts, furniture.primitives()):
-            register_primitive(plant, body, primitive, X_WF, tuple(part.rgba), config)
+            register_primitive(plant, body, primitive, X_WF, tuple(part.rgba), config, owner)
     layout = scenario.replicacad_layout()
     if layout is not None:
         for wall in layout.walls:
-            register_primitive(plant, walls_body, wall, I_W, _WALL_RGBA, config)
-        register_replicacad(plant, scene, layout, _proximity(config, False, 0.05))
+            register_primitive(plant, walls_body, wall, I_W, _WALL_RGBA, config, owner)
+        register_replicacad(plant, scene, layout, _proximity(config, False, 0.05), anchored_owner=owner)
 
     object_bodies: dict[str, RigidBody] = {}
+    asleep = set(sleeping_objects(scenario, clutter_sleep)) if clutter_sleep is not None else set()
     for obj in scenario.objects:
+        X_WO = RigidTransform(RollPitchYaw(obj.rpy), np.asarray(obj.xyz, float))
+        if obj.name in asleep:
+            owner[add_sleeping_ycb_object(plant, obj.name, X_WO, config, obj.model)] = obj.name
+            continue
         _, body = add_ycb_body(plant, obj.name, config, obj.model)
-        plant.SetDefaultFloatingBaseBodyPose(body, RigidTransform(RollPitchYaw(obj.rpy), np.asarray(obj.xyz, float)))
+        plant.SetDefaultFloatingBaseBodyPose(body, X_WO)
         object_bodies[obj.name] = body
 
     obstacles = {
@@ -323,4 +371,6 @@ def add_scene(
         support_heights={s.id: s.height for s in scenario.support_surfaces()},
         static_shapes=static_obstacle_shapes(scenario),
         floor=floor,
+        static_geometry_owner=owner,
+        asleep=sorted(asleep),
     )

@@ -86,8 +86,8 @@ class WorldConfig:
     #: contact normals tilted ~30 deg off the pad and the object slid out along
     #: the approach (box room: the tomato soup can left the closing fingers).
     hydroelastic_fingers: bool = True
-    #: Objects away from the target sleep (held still, no contact with the
-    #: welded scene); applied by the episode runner.
+    #: Objects away from the target are built asleep (anchored geometry: held
+    #: still, never paired with the static scene).
     clutter_sleep: ClutterSleepConfig = dc.field(default_factory=ClutterSleepConfig)
 
 
@@ -162,7 +162,7 @@ def build_world(builder: DiagramBuilder, scenario: Scenario, config: WorldConfig
         if actuator.model_instance() == robot:
             kp, kd = _gains_for(actuator.joint().name(), config.gains)
             actuator.set_controller_gains(PdControllerGains(p=kp, d=kd))
-    scene = add_scene(plant, scenario, config.scene)
+    scene = add_scene(plant, scenario, config.scene, config.clutter_sleep)
     plant.Finalize()
 
     V0 = initial_robot_configuration(scenario)
