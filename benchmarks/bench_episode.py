@@ -12,7 +12,13 @@ beside it (`vamg_drake.bench.busy.busy_cpu`). The same scenario, config and
 code must give the same episode at any load; the two records are compared
 field by field (status, kind, detail, sim time, path length, phases, depth
 frames, planner calls). `--time-limit` shortens the episodes (sim seconds) for
-quick runs.
+quick runs. `--scenario FILE` adds scenario files (for example a paper task
+from a `vamg bench --suite paper_static` suite: an apartment with 20 objects).
+
+`--reference DIR` also runs every episode (plain) with the code of another
+source tree (a `git worktree` of the previous commit), in a subprocess with
+`PYTHONPATH=DIR`, and reports its real-time factors, the speed-up and
+whether it ended each episode the same way (`same_as_reference`).
 
 Reports `identical_across_runs` (every pair equal) with the differing fields
 per scenario, `real_time_factor_median` over all runs, the per-module wall
@@ -30,7 +36,11 @@ import argparse
 import dataclasses as dc
 import json
 import os
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -39,7 +49,7 @@ from vamg_drake.diagram import DiagramConfig
 from vamg_drake.episode import EpisodeResult, run_episode
 from vamg_drake.scenarios import DEMO_SCENARIO
 from vamg_drake.world.rooms import RoomGeneratorConfig, generate_scenario
-from vamg_drake.world.scenario import load_scenario
+from vamg_drake.world.scenario import load_scenario, save_scenario
 
 #: The fields of an episode that must not depend on the machine.
 COMPARED = ("status", "kind", "detail", "sim_time", "path_length", "phases", "depth_frames", "planner_calls")
@@ -57,6 +67,29 @@ def differing_fields(a: dict, b: dict) -> list[str]:
     return [k for k in COMPARED if a.get(k) != b.get(k)]
 
 
+#: Runs one episode with whatever `vamg_drake` is importable; prints its record and real-time factor.
+_REFERENCE_EPISODE = """
+import json, sys
+from vamg_drake.diagram import DiagramConfig
+from vamg_drake.episode import run_episode
+from vamg_drake.world.scenario import load_scenario, save_scenario
+r = run_episode(load_scenario(sys.argv[1]), DiagramConfig(seed=int(sys.argv[2])), record=False, progress=False)
+print(json.dumps(dict(status=r.status, kind=r.kind, detail=r.detail, sim_time=r.sim_time, path_length=r.path_length,
+                      phases=r.phases, depth_frames=r.depth_frames, real_time_factor=r.real_time_factor)))
+"""
+
+
+def reference_episode(tree: Path, scenario, seed: int) -> dict:
+    """The episode run by the code in source tree ``tree`` (a subprocess with ``PYTHONPATH=tree``)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "scenario.yaml"
+        save_scenario(scenario, path)
+        env = dict(os.environ, PYTHONPATH=str(tree))
+        out = subprocess.run([sys.executable, "-c", _REFERENCE_EPISODE, str(path), str(seed)], env=env, cwd=tree,
+                             capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--time-limit", type=float, default=None,
@@ -65,10 +98,14 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="DiagramConfig.seed (samplers, planner)")
     parser.add_argument("--busy", type=int, default=1, help="spinning processes beside the loaded run")
     parser.add_argument("--no-warm-up", action="store_true")
+    parser.add_argument("--scenario", action="append", default=[], help="another scenario file to run (repeatable)")
+    parser.add_argument("--reference", type=Path, default=None,
+                        help="source tree of the reference code (e.g. a worktree of the previous commit)")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
 
     scenarios = [load_scenario(DEMO_SCENARIO), generate_scenario(args.room_seed, RoomGeneratorConfig(dynamic=True))]
+    scenarios += [load_scenario(f) for f in args.scenario]
     if args.time_limit is not None:
         for s in scenarios:
             s.time_limit = args.time_limit
@@ -95,10 +132,20 @@ def main() -> None:
         per_scenario[scenario.name] = dict(
             status=records["plain"]["status"], sim_time=records["plain"]["sim_time"],
             differing_fields=differing_fields(records["plain"], records["busy"]))
+        if args.reference is not None:
+            ref = reference_episode(args.reference.resolve(), scenario, args.seed)
+            plain_rtf = next(r["real_time_factor"] for r in reversed(runs) if r["load"] == "plain")
+            per_scenario[scenario.name].update(
+                reference_real_time_factor=ref["real_time_factor"], real_time_factor=plain_rtf,
+                speedup=plain_rtf / ref["real_time_factor"],
+                reference_differing_fields=[k for k in COMPARED if k in ref and ref[k] != records["plain"][k]])
+            if not args.json:
+                print(json.dumps({"reference": scenario.name, **per_scenario[scenario.name]}), flush=True)
 
     modules = sorted({m for r in runs for m in r["timings"]})
     metrics = dict(
-        workload="demo.yaml + generate_scenario(room_seed, dynamic=True), each plain and with busy CPU processes",
+        workload="demo.yaml + generate_scenario(room_seed, dynamic=True) + --scenario files, each plain and with busy CPU processes",
+        scenario_files=args.scenario,
         time_limit=args.time_limit,
         room_seed=args.room_seed,
         seed=args.seed,
@@ -114,6 +161,14 @@ def main() -> None:
         planner_wall_limit_hits=int(sum(r["timings"].get("planner_wall_limit", {}).get("count", 0) for r in runs)),
         load_average=os.getloadavg()[0],
     )
+    if args.reference is not None:
+        refs = list(per_scenario.values())
+        metrics.update(
+            reference=str(args.reference),
+            reference_real_time_factor_median=float(np.median([r["reference_real_time_factor"] for r in refs])),
+            speedup_median=float(np.median([r["speedup"] for r in refs])),
+            same_as_reference=all(not r["reference_differing_fields"] for r in refs),
+        )
     print(json.dumps(metrics))
 
 
