@@ -169,7 +169,7 @@ def parse_kinematic_tree(urdf_path: Path | None = None) -> KinematicTree:
     return KinematicTree(tuple(order), parent, X_PJ, joint_type, axis, var_index)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def link_transforms(parent, X_PJ, joint_type, axis, var_index, v, T):
     """T[i, :3, :] = X_W(link i) (rows of the pose) for the extended
     configuration v (NX,), for every link whose joint_type is not
@@ -225,7 +225,7 @@ def link_transforms(parent, X_PJ, joint_type, axis, var_index, v, T):
             T[i, a, 3] = a0 * t0 + a1 * t1 + a2 * t2 + a3
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def tip_jacobian(parent, joint_type, axis, var_index, T, tip, column, J):
     """J (6, n): the geometric Jacobian of link `tip`'s origin, rows (v, w)
     in W, from the link poses T that `link_transforms` computed. Column
