@@ -13,7 +13,7 @@ from vamg_drake.diagram import DiagramConfig
 from vamg_drake.episode import run_episode
 from vamg_drake.perception.gaze import GazeOptimizer as GazeCore, decide_fetch_gaze
 from vamg_drake.perception.raycast_map import PointMapSnapshot
-from vamg_drake.perception.seen_space import (LookGateConfig, SeenGrid, SeenSpaceConfig, unseen_footprint,
+from vamg_drake.perception.seen_space import (LookGateConfig, _within_radius_of_path, SeenGrid, SeenSpaceConfig, unseen_footprint,
                                               with_hidden_cells)
 from vamg_drake.perception.trajectory_sweep import TrajectorySweep
 from vamg_drake.planning.trajectory import TimedTrajectory
@@ -209,3 +209,14 @@ def test_planner_map_gets_points_in_the_hidden_cells_columns():
     np.testing.assert_allclose(merged.points[2:, 2], [0.1, 0.25, 0.4])
     np.testing.assert_allclose(merged.points[2:, :2], np.repeat(grid.centers(cell[None]), 3, axis=0))
     assert merged.voxel_keys.shape == (5,)
+
+
+def test_footprint_radius_kernel_gives_the_array_expressions_verdicts():
+    """The compiled within-radius test equals NumPy's (C, K, 2) expression, cell for cell."""
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        xy = rng.uniform(-1, 1, (int(rng.integers(1, 800)), 2))
+        section = rng.uniform(-1, 1, (int(rng.integers(1, 200)), 2))
+        r = float(rng.uniform(0.05, 0.5))
+        expected = ((xy[:, None, :] - section[None, :, :]) ** 2).sum(axis=2).min(axis=1) <= r * r
+        assert np.array_equal(_within_radius_of_path(xy, section, r * r), expected)

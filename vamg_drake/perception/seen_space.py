@@ -32,6 +32,7 @@ their probes.
 import dataclasses as dc
 import math
 
+import numba
 import numpy as np
 
 from vamg_drake.perception.raycast_map import PointMapSnapshot, _encode_points, inside_any_sphere
@@ -299,13 +300,32 @@ def unseen_footprint(grid: SeenGrid, path: np.ndarray, q_base: np.ndarray, t: fl
     ii, jj = np.meshgrid(np.arange(lo[0], hi[0]), np.arange(lo[1], hi[1]), indexing="ij")
     cells = np.column_stack([ii.ravel(), jj.ravel()])
     xy = grid.centers(cells)
-    d2 = ((xy[:, None, :] - section[None, :, :]) ** 2).sum(axis=2).min(axis=1)
+    near = _within_radius_of_path(xy, np.ascontiguousarray(section), r * r)
     own = np.hypot(xy[:, 0] - q_base[0], xy[:, 1] - q_base[1])
     bearing = np.arctan2(xy[:, 1] - q_base[1], xy[:, 0] - q_base[0]) - q_base[2]
     bearing = np.abs((bearing + np.pi) % (2.0 * np.pi) - np.pi)
-    wanted = (d2 <= r * r) & (own > max(r, config.blind_radius)) & (bearing <= config.max_bearing)
+    wanted = near & (own > max(r, config.blind_radius)) & (bearing <= config.max_bearing)
     wanted[wanted] = ~grid.seen_by(cells[wanted], t - config.settle_time)
     return np.column_stack([xy[wanted], np.full(int(wanted.sum()), grid.config.probe_height)])
+
+
+@numba.njit(cache=True)
+def _within_radius_of_path(xy: np.ndarray, section: np.ndarray, r2: float) -> np.ndarray:
+    """Whether each point of ``xy`` (C, 2) lies within sqrt(r2) of a point of ``section`` (K, 2).
+
+    The squared distances are summed as NumPy's ``((a - b) ** 2).sum()`` does
+    (dx*dx + dy*dy), so the verdicts equal the array expression's; the loop
+    stops at the first path point close enough, without the (C, K, 2) array.
+    """
+    out = np.zeros(xy.shape[0], np.bool_)
+    for c in range(xy.shape[0]):
+        for k in range(section.shape[0]):
+            dx = xy[c, 0] - section[k, 0]
+            dy = xy[c, 1] - section[k, 1]
+            if dx * dx + dy * dy <= r2:
+                out[c] = True
+                break
+    return out
 
 
 def with_hidden_cells(snapshot: PointMapSnapshot | None, grid: SeenGrid | None) -> PointMapSnapshot | None:
