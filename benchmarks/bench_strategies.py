@@ -43,13 +43,14 @@ def run_strategy(strategy: str, problems, maps: KinematicMaps, seed: int) -> dic
     for i, (points, target, q0) in enumerate(problems):
         pipeline = SubgoalPipeline(maps, seed=seed + i)
         behaviour = make_strategy(strategy, pipeline)
+        state = behaviour.initial_state()
         q, t, event, outcome = q0, 0.0, MotionEvent.NONE, "not_converged"
         for _ in range(MAX_GOALS):
             t0 = time.perf_counter()
-            cmd = behaviour.step(PolicyInputs(t, q, points, target), event)
+            state, cmd = behaviour.step(state, PolicyInputs(t, q, points, target), event)
             decision_ms.append(1e3 * (time.perf_counter() - t0))
             if cmd.phase == Phase.GRASP_MOVE:
-                goals_to_grasp.append(sum(behaviour.goals_issued.values()))
+                goals_to_grasp.append(sum(state.goals_issued.values()))
                 outcome = "grasp_goal"
                 break
             if cmd.phase == Phase.FAILED:
@@ -78,7 +79,8 @@ def main() -> None:
     maps = KinematicMaps.load_or_build()
     points, target, q0 = problems[0]
     for strategy in BEHAVIOURS:  # warm-up: JIT compilation is not a decision's cost
-        make_strategy(strategy, SubgoalPipeline(maps)).step(PolicyInputs(0.0, q0, points, target))
+        behaviour = make_strategy(strategy, SubgoalPipeline(maps))
+        behaviour.step(behaviour.initial_state(), PolicyInputs(0.0, q0, points, target))
     result = {"problems": args.problems, "seed": args.seed, "max_goals": MAX_GOALS}
     for strategy in BEHAVIOURS:  # subgoal_tree (the reference) first
         result[strategy] = run_strategy(strategy, problems, maps, args.seed)

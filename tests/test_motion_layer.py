@@ -11,18 +11,20 @@ from pydrake.systems.analysis import Simulator
 from vamg_drake.perception.raycast_map import PointMapSnapshot
 from vamg_drake.planning.collision_environment import CollisionEnvironment
 from vamg_drake.planning.sphere_collision import SphereCollisionChecker
-from vamg_drake.planning.whole_body_planner import PlannerConfig
-from vamg_drake.policy.behaviour_tree import MotionEvent, Phase, SubgoalCommand
-from vamg_drake.robot import layout
-from vamg_drake.systems.planner_system import (
+from vamg_drake.planning.motion_messages import MotionEvent, Phase, SubgoalCommand
+from vamg_drake.planning.motion_supervisor import (
     EXCEPTION_REASON,
     REPLAN_LIMIT_REASON,
-    PlannerSystem,
+    MotionInputs,
+    MotionSupervisor,
     PlannerSystemConfig,
     arm_floor_clearance,
     linear_trajectory,
     remaining_path,
 )
+from vamg_drake.planning.whole_body_planner import PlannerConfig, WholeBodyPlanner
+from vamg_drake.robot import layout
+from vamg_drake.systems.planner_system import PlannerSystem
 
 
 def _goal(goal_id, q_goal, motion, phase=Phase.PREGRASP):
@@ -248,3 +250,26 @@ def test_a_start_put_in_collision_by_the_map_backs_out_along_the_robots_path():
     assert plan.success and not plan.retreat and plan.goal_id == 7
     np.testing.assert_allclose(plan.trajectory.q[0, :2], back[-1, :2], atol=1e-6)
     np.testing.assert_allclose(plan.trajectory.q[-1], goal.q_goal, atol=1e-6)
+
+
+def test_the_supervisor_step_is_a_function_of_its_state_and_inputs():
+    """The plain core without a simulator: a step leaves the state it is given
+    as it was, stepping it again gives the same plan, and the state carries
+    the robot's recent configurations (for retreats) and the plan."""
+    planner = WholeBodyPlanner.for_fetch(CollisionEnvironment(), PlannerConfig(attempt_wall_limit_s=5.0))
+    supervisor = MotionSupervisor(planner, PlannerSystemConfig())
+    initial = supervisor.initial_state()
+    q0, q1 = layout.stow_configuration(0.0, 0.0, 0.0), layout.stow_configuration(1.5, 0.5, 0.3)
+    inputs = MotionInputs(_goal(1, q1, "plan"), q0, 0.0, 0)
+    first, event = supervisor.step(initial, inputs)
+    again, event_again = supervisor.step(initial, inputs)
+    assert initial.plan.goal_id == -1 and initial.history == () and initial.last_replan_time == -np.inf
+    assert event == event_again == MotionEvent.NONE
+    assert first.plan.success and first.plan.goal_id == 1 and first.last_replan_time == 0.0
+    np.testing.assert_array_equal(first.plan.trajectory.q, again.plan.trajectory.q)
+    assert len(first.history) == 1 and np.array_equal(first.history[0][1], q0)
+    # At the goal after the trajectory's end: REACHED, with the robot's path recorded.
+    end = first.plan.trajectory.end_time
+    reached, event = supervisor.step(first, MotionInputs(_goal(1, q1, "plan"), q1, end + 0.1, 0))
+    assert event == MotionEvent.REACHED and reached.plan is first.plan and len(reached.history) == 2
+    assert len(first.history) == 1

@@ -6,11 +6,12 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
 
 from vamg_drake.perception.raycast_map import PointMap, PointMapSnapshot
+from vamg_drake.planning.motion_messages import MotionEvent, Phase, SubgoalCommand
+from vamg_drake.planning.motion_supervisor import PlannerSystemConfig
 from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig
-from vamg_drake.policy.behaviour_tree import MotionEvent, Phase, SubgoalCommand
 from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics, HeadCameraConfig
-from vamg_drake.systems.planner_system import PlannerSystem, PlannerSystemConfig
+from vamg_drake.systems.planner_system import PlannerSystem
 from vamg_drake.systems.timing import ModuleTimings
 
 

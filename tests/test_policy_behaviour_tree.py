@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from behaviour_stepper import Stepper
 from vamg_drake.policy.behaviour_tree import (
     BehaviourConfig,
     FailureCategory,
@@ -41,7 +42,7 @@ def _inputs(t: float = 0.0, q: np.ndarray | None = None) -> PolicyInputs:
 
 def _make(grasp, pre, obs, **cfg):
     samplers = SubgoalSamplers(ScriptedSampler("grasp", grasp), ScriptedSampler("pregrasp", pre), ScriptedSampler("observe", obs))
-    return SubgoalBehaviour(samplers, BehaviourConfig(**cfg)), samplers
+    return Stepper(SubgoalBehaviour(samplers, BehaviourConfig(**cfg))), samplers
 
 
 def test_grasp_first_then_full_grasp_sequence() -> None:
@@ -161,7 +162,7 @@ def test_failure_category_when_no_grasp_and_no_pregrasp(pregrasp_category, expec
         ScriptedSampler("pregrasp", [False], pregrasp_category),
         ScriptedSampler("observe", [False]),
     )
-    cmd = SubgoalBehaviour(samplers).step(_inputs())
+    cmd = Stepper(SubgoalBehaviour(samplers)).step(_inputs())
     assert cmd.failure == expected
 
 
@@ -170,7 +171,7 @@ def test_sampler_exception_is_a_recorded_failure() -> None:
         raise RuntimeError("boom")
 
     samplers = SubgoalSamplers(broken, ScriptedSampler("pregrasp", [True]), ScriptedSampler("observe", [True]))
-    bt = SubgoalBehaviour(samplers)
+    bt = Stepper(SubgoalBehaviour(samplers))
     cmd = bt.step(_inputs())
     # Recorded as the stage's failure, and the episode ends as an error (see the test below).
     assert bt.stage_failures["grasp"] == ("grasp sampler raised RuntimeError: boom", "error")
@@ -190,6 +191,45 @@ def test_a_raising_sampler_ends_the_episode_as_an_error_with_its_traceback() -> 
         raise ZeroDivisionError("injected sampler fault")
 
     samplers = SubgoalSamplers(broken, ScriptedSampler("pregrasp", [True]), ScriptedSampler("observe", [True]))
-    cmd = SubgoalBehaviour(samplers, BehaviourConfig()).step(_inputs())
+    cmd = Stepper(SubgoalBehaviour(samplers, BehaviourConfig())).step(_inputs())
     assert cmd.phase == Phase.FAILED and cmd.failure == FailureCategory.ERROR and cmd.motion == "hold"
     assert "Traceback" in cmd.reason and "ZeroDivisionError: injected sampler fault" in cmd.reason
+
+
+class RandomSampler:
+    """Proposes a goal a random distance ahead; remembers its generator (a `SamplerMemory`)."""
+
+    def __init__(self) -> None:
+        self.rng = np.random.default_rng(0)
+
+    def __call__(self, inputs: PolicyInputs) -> SubgoalProposal:
+        q = np.asarray(inputs.q, float).copy()
+        q[0] += self.rng.uniform(0.5, 1.5)
+        return SubgoalProposal(True, q, q + 0.01, np.zeros(2))
+
+    def save_state(self) -> dict:
+        return self.rng.bit_generator.state
+
+    def load_state(self, state: dict) -> None:
+        self.rng.bit_generator.state = state
+
+
+def test_a_step_is_a_function_of_the_state_and_the_inputs() -> None:
+    """The state a step is given is left as it was, and stepping it again
+    gives the same answer: the samplers' random generator is part of it."""
+    sampler = RandomSampler()
+    bt = SubgoalBehaviour(SubgoalSamplers(sampler, sampler, sampler, memory=(sampler,)))
+    initial = bt.initial_state()
+    first, cmd = bt.step(initial, _inputs())
+    again, cmd_again = bt.step(initial, _inputs())
+    assert initial.phase == Phase.IDLE and initial.history == () and initial.goal_id == 0
+    assert cmd.goal_id == cmd_again.goal_id == 1 and cmd.phase == Phase.GRASP_MOVE
+    np.testing.assert_array_equal(cmd.q_goal, cmd_again.q_goal)
+    assert first.history == again.history
+    # A failed motion resamples: a new random goal, the same from both copies of the state.
+    _, failed = bt.step(first, _inputs(1.0), MotionEvent.FAILED)
+    _, failed_again = bt.step(again, _inputs(1.0), MotionEvent.FAILED)
+    assert failed.goal_id == 2 and failed.phase == Phase.PREGRASP
+    np.testing.assert_array_equal(failed.q_goal, failed_again.q_goal)
+    assert failed.q_goal[0] != cmd.q_goal[0]
+    assert first.motion_failure_counts["grasp"] == 0  # the step did not change the state it was given

@@ -7,6 +7,7 @@ import dataclasses as dc
 import numpy as np
 import pytest
 
+from behaviour_stepper import Stepper
 from vamg_drake.testing import synthetic_clouds as clouds
 from vamg_drake.policy.behaviour_tree import FailureCategory, MotionEvent, Phase, PolicyInputs, SubgoalBehaviour
 from vamg_drake.policy.kinematic_maps import KinematicMaps
@@ -103,7 +104,7 @@ def test_pregrasp_samples_are_collision_free_ik_valid_and_see_the_target(pipelin
 
 def test_tree_falls_back_and_recovers_in_a_scene(pipeline, scene) -> None:
     points, target = scene
-    bt = SubgoalBehaviour(pipeline.samplers())
+    bt = Stepper(SubgoalBehaviour(pipeline.samplers()))
     q = layout.stow_configuration(-1.5, 0.5, 0.0)  # 2.5 m from the target: no grasp in place
     cmd = bt.step(PolicyInputs(0.0, q, points, target))
     assert cmd.phase == Phase.PREGRASP, bt.tree_status()
@@ -126,7 +127,7 @@ def test_tree_falls_back_to_observe_when_the_target_is_out_of_reach(pipeline) ->
     can = clouds.can_cloud(center=(1.5, 0.0, 0.6), seed=3)
     points = np.concatenate([clouds.room_walls_cloud(), table, can])
     target = np.array([1.5, 0.0, 0.66])
-    bt = SubgoalBehaviour(pipeline.samplers())
+    bt = Stepper(SubgoalBehaviour(pipeline.samplers()))
     cmd = bt.step(PolicyInputs(0.0, layout.stow_configuration(-1.0, 0.0, 0.0), points, target))
     assert cmd.phase == Phase.OBSERVE, bt.tree_status()
     d = np.linalg.norm(cmd.q_goal[:2] - target[:2])
@@ -142,7 +143,7 @@ def test_tree_falls_back_to_observe_when_the_target_is_out_of_reach(pipeline) ->
 def test_target_outside_the_room_fails_with_reachability(pipeline, scene) -> None:
     points, _ = scene
     target = np.array([4.5, 0.0, 0.8])  # beyond the wall at x = 3
-    bt = SubgoalBehaviour(pipeline.samplers())
+    bt = Stepper(SubgoalBehaviour(pipeline.samplers()))
     cmd = bt.step(PolicyInputs(0.0, layout.stow_configuration(0.0, 0.0, 0.0), points, target))
     assert cmd.phase == Phase.FAILED
     assert cmd.failure in (FailureCategory.REACHABILITY, FailureCategory.PERCEPTION, FailureCategory.SUBGOAL)
@@ -153,7 +154,7 @@ def test_target_inside_furniture_fails_with_perception(pipeline) -> None:
     cabinet = clouds.box_surface_cloud([1.0, -0.4, 0.0], [1.6, 0.4, 0.9], spacing=0.02)
     points = np.concatenate([clouds.room_walls_cloud(), cabinet])
     target = np.array([1.3, 0.0, 0.45])  # the cabinet's solid inside
-    bt = SubgoalBehaviour(pipeline.samplers())
+    bt = Stepper(SubgoalBehaviour(pipeline.samplers()))
     cmd = bt.step(PolicyInputs(0.0, layout.stow_configuration(-1.0, 0.0, 0.0), points, target))
     assert cmd.phase == Phase.FAILED and cmd.failure == FailureCategory.PERCEPTION
     assert "enclosed" in cmd.reason

@@ -72,7 +72,7 @@ def test_policy_system_ports_and_fallback() -> None:
     np.testing.assert_allclose(goal.q_goal[0], Q0[0] + 1.0)
     assert policy.GetOutputPort("gripper_command").Eval(ctx)[0] == layout.GRIPPER_MAX_OPENING
     assert log[0] == ("grasp", 2, (1.0, 0.0, 0.76))
-    assert "Pre-grasp" in policy.behaviour.tree_status()
+    assert "Pre-grasp" in policy.tree_status(ctx)
 
 
 def test_policy_system_reached_by_distance_and_closes_gripper() -> None:
@@ -94,7 +94,7 @@ def test_policy_system_motion_failure_feedback() -> None:
     goal = policy.GetOutputPort("goal").Eval(ctx)
     # Goal 1 (pre-grasp) failed once, handled once: a fresh pre-grasp goal 2.
     assert goal.phase == Phase.PREGRASP and goal.goal_id == 2
-    assert policy.behaviour.motion_failures["pre_grasp"] == 1
+    assert policy.behaviour_state(ctx).motion_failure_counts["pre_grasp"] == 1
 
 
 def test_real_subgoal_policy_in_a_diagram() -> None:
@@ -114,8 +114,9 @@ def test_real_subgoal_policy_in_a_diagram() -> None:
     builder.Connect(t.get_output_port(), policy.GetInputPort("target"))
     sim = Simulator(builder.Build())
     sim.AdvanceTo(0.05)
-    goal = policy.GetOutputPort("goal").Eval(policy.GetMyContextFromRoot(sim.get_context()))
-    assert goal.phase == Phase.PREGRASP and goal.motion == "plan", policy.behaviour.tree_status()
+    ctx = policy.GetMyContextFromRoot(sim.get_context())
+    goal = policy.GetOutputPort("goal").Eval(ctx)
+    assert goal.phase == Phase.PREGRASP and goal.motion == "plan", policy.tree_status(ctx)
     assert np.all(np.isfinite(goal.q_goal)) and np.all(np.isfinite(goal.head))
 
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
+from behaviour_stepper import Stepper
 from scenes import box_room_scenario
 from vamg_drake.bench.methods import known_methods, load_method
 from vamg_drake.diagram import DiagramConfig, apply_strategy_defaults, build_diagram
@@ -68,7 +69,7 @@ def _scripted(cls, grasp=(True,), navigate=(True,), observe=(True,), grasp_categ
     samplers = StrategySamplers(Scripted("grasp", list(grasp), grasp_category),
                                 Scripted("navigate", list(navigate), navigate_category),
                                 Scripted("observe", list(observe)), goal_is_free, rejected.append)
-    return cls(samplers, BehaviourConfig(**cfg)), samplers, rejected
+    return Stepper(cls(samplers, BehaviourConfig(**cfg))), samplers, rejected
 
 
 def _grasp_to_success(bt, cmd, t: float):
@@ -251,7 +252,7 @@ def test_total_motion_failures_and_sampler_exceptions() -> None:
 
     samplers = StrategySamplers(broken, broken, broken)
     for cls in (DirectGraspingBehaviour, NavAndManipBehaviour, ClosedLoopReplanningBehaviour):
-        cmd = cls(samplers).step(_inputs())
+        cmd = Stepper(cls(samplers)).step(_inputs())
         assert cmd.phase == Phase.FAILED and cmd.failure == FailureCategory.ERROR  # a bug, not a subgoal failure
         assert "ZeroDivisionError" in cmd.reason and "Traceback" in cmd.reason
 
@@ -286,7 +287,7 @@ def _arm_only(goal: np.ndarray, q_base: np.ndarray) -> None:
 def test_real_nav_and_manip(pipeline, scene) -> None:
     points, target = scene
     q0 = layout.stow_configuration(-1.5, 0.5, 0.0)
-    bt = make_strategy("nav_and_manip", pipeline)
+    bt = Stepper(make_strategy("nav_and_manip", pipeline))
     cmd = bt.step(PolicyInputs(0.0, q0, points, target))
     assert cmd.phase == Phase.PREGRASP, bt.tree_status()
     goal = cmd.q_goal
@@ -311,7 +312,7 @@ def test_real_nav_and_manip(pipeline, scene) -> None:
 def test_real_nav_and_manip_failures(pipeline, scene) -> None:
     points, target = scene
     # The base stopped far from the target: no grasp from there, no repositioning.
-    bt = make_strategy("nav_and_manip", pipeline)
+    bt = Stepper(make_strategy("nav_and_manip", pipeline))
     cmd = bt.step(PolicyInputs(0.0, layout.stow_configuration(-1.5, 0.5, 0.0), points, target))
     cmd = bt.step(PolicyInputs(1.0, layout.stow_configuration(-1.5, 0.5, 0.0), points, target), MotionEvent.REACHED)
     cmd = bt.step(PolicyInputs(1.1 + StrategyConfig().grasp_patience, layout.stow_configuration(-1.5, 0.5, 0.0),
@@ -321,7 +322,7 @@ def test_real_nav_and_manip_failures(pipeline, scene) -> None:
     table = clouds.box_surface_cloud([0.5, -1.0, 0.0], [2.5, 1.0, 0.6])
     can = clouds.can_cloud(center=(1.5, 0.0, 0.6), seed=3)
     points = np.concatenate([clouds.room_walls_cloud(), table, can])
-    bt = make_strategy("nav_and_manip", pipeline)
+    bt = Stepper(make_strategy("nav_and_manip", pipeline))
     cmd = bt.step(PolicyInputs(0.0, layout.stow_configuration(-1.0, 0.0, 0.0), points, np.array([1.5, 0.0, 0.66])))
     assert cmd.phase == Phase.FAILED and cmd.failure == FailureCategory.SUBGOAL
     assert "standoffs" in cmd.reason
@@ -333,7 +334,7 @@ def test_real_capmap_placement(maps, scene) -> None:
     grasped = 0
     for seed in range(4):  # one base sample per episode: some seeds give no grasp from it
         pipeline = SubgoalPipeline(maps, seed=seed)
-        bt = make_strategy("capmap_placement", pipeline)
+        bt = Stepper(make_strategy("capmap_placement", pipeline))
         cmd = bt.step(PolicyInputs(0.0, q0, points, target))
         assert cmd.phase == Phase.PREGRASP, bt.tree_status()
         goal = cmd.q_goal
@@ -357,7 +358,7 @@ def test_real_direct_grasping(maps, scene) -> None:
     kin = FetchKinematics.instance()
     grasped = 0
     for seed in range(4):  # one pre-grasp sample per episode: some seeds give no grasp
-        bt = make_strategy("direct_grasping", SubgoalPipeline(maps, seed=seed))
+        bt = Stepper(make_strategy("direct_grasping", SubgoalPipeline(maps, seed=seed)))
         cmd = bt.step(PolicyInputs(0.0, q0, points, target))
         assert cmd.phase == Phase.OBSERVE, bt.tree_status()
         np.testing.assert_allclose(cmd.q_goal[layout.ARM], layout.Q_ARM_STOW)
@@ -379,7 +380,7 @@ def test_real_closed_loop(pipeline, scene) -> None:
     points, target = scene
     q0 = layout.stow_configuration(-1.5, 0.5, 0.0)
     kin = FetchKinematics.instance()
-    bt = make_strategy("closed_loop_replanning", pipeline)
+    bt = Stepper(make_strategy("closed_loop_replanning", pipeline))
     cmd = bt.step(PolicyInputs(0.0, q0, points, target))
     assert cmd.phase == Phase.PREGRASP and bt.goals_issued["observe"] == 0
     assert np.linalg.norm(kin.gripper_pose(cmd.q_goal)[:3, 3] - target) == pytest.approx(0.10, abs=0.01)
@@ -402,7 +403,7 @@ def test_target_inside_furniture_is_perception_for_every_strategy(pipeline) -> N
     points = np.concatenate([clouds.room_walls_cloud(), cabinet])
     target = np.array([1.3, 0.0, 0.45])
     for strategy in ("direct_grasping", "nav_and_manip", "capmap_placement", "closed_loop_replanning"):
-        cmd = make_strategy(strategy, pipeline).step(
+        cmd = Stepper(make_strategy(strategy, pipeline)).step(
             PolicyInputs(0.0, layout.stow_configuration(-1.0, 0.0, 0.0), points, target))
         assert cmd.phase == Phase.FAILED and cmd.failure == FailureCategory.PERCEPTION, strategy
         assert "enclosed" in cmd.reason
@@ -457,11 +458,11 @@ def test_every_method_builds_and_steps_one_second(name: str) -> None:
     sim.AdvanceTo(1.0)
     if method.config.policy != "full":
         return
-    behaviour = ed.policy.behaviour
-    assert type(behaviour) is BEHAVIOURS[method.config.strategy]
+    assert type(ed.policy.behaviour) is BEHAVIOURS[method.config.strategy]
     assert ed.config.gaze.variant == apply_strategy_defaults(method.config).gaze.variant
-    goal = ed.policy.GetOutputPort("goal").Eval(ed.policy.GetMyContextFromRoot(sim.get_context()))
-    assert goal.goal_id > 0 and goal.phase != Phase.FAILED, behaviour.history
+    policy_context = ed.policy.GetMyContextFromRoot(sim.get_context())
+    goal = ed.policy.GetOutputPort("goal").Eval(policy_context)
+    assert goal.goal_id > 0 and goal.phase != Phase.FAILED, ed.policy.behaviour_state(policy_context).history
 
 
 def test_a_raising_sampler_is_an_error_in_every_strategy():

@@ -43,6 +43,7 @@ from vamg_drake.control.whole_body_tracker import TrackerConfig
 from vamg_drake.perception.gaze import GazeConfig
 from vamg_drake.perception.raycast_map import RayCastMapConfig
 from vamg_drake.perception.seen_space import LookGateConfig, SeenSpaceConfig
+from vamg_drake.planning.motion_supervisor import PlannerSystemConfig
 from vamg_drake.policy.behaviour_tree import BehaviourConfig
 from vamg_drake.policy.learned_grasps import GraspQualityModel
 from vamg_drake.policy.strategies import BEHAVIOURS, StrategyConfig
@@ -51,7 +52,7 @@ from vamg_drake.systems.depth_sampler import DepthSampler
 from vamg_drake.systems.dynamic_obstacles import DynamicObstacleDriver
 from vamg_drake.systems.episode_monitor_system import EpisodeMonitor
 from vamg_drake.systems.gaze_system import GazeOptimizer
-from vamg_drake.systems.planner_system import PlannerSystem, PlannerSystemConfig
+from vamg_drake.systems.planner_system import PlannerSystem
 from vamg_drake.systems.raycast_map_system import RayCastMap
 from vamg_drake.systems.robot_command import RobotCommandIntegrator
 from vamg_drake.systems.robot_state import RobotStateSelector

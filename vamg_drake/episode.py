@@ -28,7 +28,7 @@ from pydrake.geometry import StartMeshcat
 from pydrake.systems.analysis import Simulator
 from tqdm import tqdm
 
-from vamg_drake.diagram import DiagramConfig, build_diagram
+from vamg_drake.diagram import DiagramConfig, EpisodeDiagram, build_diagram
 from vamg_drake.provenance import atomic_write_text, provenance
 from vamg_drake.world.episode_monitor import PLANNING, EpisodeOutcome
 from vamg_drake.world.scenario import Scenario
@@ -138,16 +138,45 @@ def _run_recorded(scenario: Scenario, config: DiagramConfig, out: Path | None, r
     return result
 
 
-def _run(scenario: Scenario, config: DiagramConfig, out: Path | None, record: bool, progress: bool,
-         chunk: float) -> EpisodeResult:
-    meshcat = _start_meshcat() if (record and out) else None
-    ed = build_diagram(scenario, config, meshcat=meshcat)
-    simulator = Simulator(ed.diagram)
+@dc.dataclass
+class SimulatedEpisode:
+    """What `simulate_episode` produced: the record and the robot's base path.
+
+    Attributes:
+        result: the episode's record (no provenance nor outputs yet).
+        outcome: the monitor's final outcome.
+        path: the base pose (x, y, yaw) after each chunk, (N, 3).
+        configuration: the robot's configuration at the end (the robot state
+            selector's ``configuration`` output).
+    """
+
+    result: EpisodeResult
+    outcome: EpisodeOutcome
+    path: np.ndarray
+    configuration: np.ndarray
+
+
+def simulate_episode(ed: EpisodeDiagram, scenario: Scenario, simulator: Simulator, progress: bool = False,
+                     chunk: float = 0.1) -> SimulatedEpisode:
+    """Runs one episode of the built diagram `ed` in `simulator`'s Context from its current state.
+
+    The Context holds every piece of the episode's state, so one built diagram
+    runs several episodes: from fresh Contexts (`Diagram.CreateDefaultContext`)
+    or from a used one reset to the defaults (`Diagram.SetDefaultContext`
+    and ``SetTime(0)``).
+    This calls `Simulator.Initialize` (the initialization events give the map
+    and the tracker their fresh state) and advances in `chunk`s until the
+    monitor ends the episode or its time limit. ``ed.timings`` is cleared
+    first: the record's timings are this episode's. An exception inside the
+    simulation ends the episode with status ``error`` and its traceback.
+    """
+    config = ed.config
     context = simulator.get_mutable_context()
-    if ed.visualizer is not None:
-        ed.visualizer.StartRecording(set_transforms_while_recording=False)
     robot_ctx = ed.robot_state.GetMyContextFromRoot(context)
     monitor_ctx = ed.monitor.GetMyContextFromRoot(context)
+    policy_ctx = ed.policy.GetMyContextFromRoot(context)
+    configuration = ed.robot_state.GetOutputPort("configuration")
+    ed.timings.clear()
     path = []
     wall0 = time.perf_counter()
     t_end = scenario.time_limit + chunk
@@ -164,11 +193,11 @@ def _run(scenario: Scenario, config: DiagramConfig, out: Path | None, record: bo
         while context.get_time() < t_end:
             t_next = min(context.get_time() + chunk, t_end)
             status = simulator.AdvanceTo(t_next)
-            path.append(ed.robot_state.GetOutputPort("configuration").Eval(robot_ctx)[:3].copy())
+            path.append(configuration.Eval(robot_ctx)[:3].copy())
             bar.update(round(chunk, 3))
             outcome = ed.monitor.GetOutputPort("outcome").Eval(monitor_ctx)
             if progress and ed.planner is not None:
-                bar.set_postfix_str(ed.policy.GetOutputPort("phase").Eval(ed.policy.GetMyContextFromRoot(context)))
+                bar.set_postfix_str(ed.policy.GetOutputPort("phase").Eval(policy_ctx))
             if outcome.done or status.reason() == status.ReturnReason.kReachedTerminationCondition:
                 break
     except _EPISODE_ERRORS as e:  # noqa: BLE001 - a crash is a recorded outcome, not a lost episode
@@ -183,8 +212,10 @@ def _run(scenario: Scenario, config: DiagramConfig, out: Path | None, record: bo
     length = float(np.sum(np.linalg.norm(np.diff(path[:, :2], axis=0), axis=1))) if len(path) > 1 else 0.0
     sim_time = context.get_time()
     phases = []
-    if hasattr(ed.policy, "behaviour"):
-        phases = [[round(t, 3), phase, reason] for t, phase, reason in ed.policy.behaviour.history]
+    if ed.policy.HasOutputPort("history"):
+        history = ed.policy.GetOutputPort("history").Eval(policy_ctx)
+        phases = [[round(t, 3), phase, reason] for t, phase, reason in history]
+    summary = ed.timings.summary()
     result = EpisodeResult(
         scenario=scenario.name,
         seed=scenario.seed,
@@ -197,16 +228,28 @@ def _run(scenario: Scenario, config: DiagramConfig, out: Path | None, record: bo
         wall_time=wall,
         real_time_factor=sim_time / wall if wall > 0 else float("nan"),
         path_length=length,
-        depth_frames=ed.timings.summary().get("depth_render", {}).get("count", 0),
-        timings=ed.timings.summary(),
+        depth_frames=summary.get("depth_render", {}).get("count", 0),
+        timings=summary,
         phases=phases,
         error=outcome.error,
     )
     log.info("episode %s: %s%s at %.1f s (%s)", scenario.name, outcome.status,
              f"/{outcome.kind}" if outcome.kind else "", outcome.time, outcome.detail)
+    return SimulatedEpisode(result, outcome, path, np.array(configuration.Eval(robot_ctx), dtype=float))
+
+
+def _run(scenario: Scenario, config: DiagramConfig, out: Path | None, record: bool, progress: bool,
+         chunk: float) -> EpisodeResult:
+    meshcat = _start_meshcat() if (record and out) else None
+    ed = build_diagram(scenario, config, meshcat=meshcat)
+    simulator = Simulator(ed.diagram)
+    if ed.visualizer is not None:
+        ed.visualizer.StartRecording(set_transforms_while_recording=False)
+    episode = simulate_episode(ed, scenario, simulator, progress, chunk)
+    result, outcome = episode.result, episode.outcome
     if out:
         title = f"{scenario.name}: {outcome.status}{'/' + outcome.kind if outcome.kind else ''} at {outcome.time:.1f} s"
-        plot_topdown(scenario, path, out / "topdown.png", title=title)
+        plot_topdown(scenario, episode.path, out / "topdown.png", title=title)
         result.outputs["topdown"] = "topdown.png"
         if ed.visualizer is not None and meshcat is not None:
             ed.visualizer.StopRecording()

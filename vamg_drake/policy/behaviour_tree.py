@@ -26,65 +26,32 @@ close the gripper, lift (torso up). Runtime recovery (``MotionEvent``):
 Pre-grasp and observe goals are budgeted (``max_pregrasp_goals``,
 ``max_observe_goals``) so the tree cannot cycle forever; when every stage is
 exhausted or fails to sample, Fail ends the episode with a category.
+
+State: `SubgoalBehaviour` is the fixed structure (samplers, config, tree);
+everything that changes is a `BehaviourState`, which
+`SubgoalBehaviour.step(state, inputs, event) -> (state, command)` advances
+(the SubgoalPolicy keeps it in the Context).
 """
 
 import dataclasses as dc
 import enum
 import traceback
-from typing import Callable
+from typing import Callable, Protocol
 
 import numpy as np
 import py_trees
 
+from vamg_drake.planning.motion_messages import (
+    GRASP_PHASES,
+    TERMINAL,
+    FailureCategory,
+    MotionEvent,
+    MotionFeedback,
+    Phase,
+    SubgoalCommand,
+    stage_name,
+)
 from vamg_drake.robot import layout
-
-
-class Phase(enum.Enum):
-    """What the robot is doing for the current subgoal."""
-
-    IDLE = "idle"
-    GRASP_MOVE = "grasp_move"  # planned motion to the pre-grasp pose of a grasp
-    GRASP_APPROACH = "grasp_approach"  # linear approach to the grasp pose
-    GRASP_CLOSE = "grasp_close"
-    GRASP_LIFT = "grasp_lift"
-    PREGRASP = "pre_grasp"
-    OBSERVE = "observe"
-    SUCCEEDED = "succeeded"
-    FAILED = "failed"
-
-
-TERMINAL = (Phase.SUCCEEDED, Phase.FAILED)
-GRASP_PHASES = (Phase.GRASP_MOVE, Phase.GRASP_APPROACH, Phase.GRASP_CLOSE, Phase.GRASP_LIFT)
-
-
-def stage_name(phase: Phase) -> str:
-    """The coarse phase name other systems key on: "grasp" for every grasp
-    phase, "pre_grasp", "observe" (`vamg_drake.world.scenario.POLICY_PHASES`),
-    else the phase's own value ("idle", "succeeded", "failed")."""
-    return "grasp" if phase in GRASP_PHASES else phase.value
-
-
-class FailureCategory(enum.Enum):
-    """The paper's failure categories that the subgoal policy can decide."""
-
-    NONE = "none"
-    REACHABILITY = "reachability"
-    PERCEPTION = "perception"
-    PLANNING = "planning"
-    SUBGOAL = "subgoal"
-    IK = "ik"
-    #: A sampler raised: a bug, recorded as the episode status "error" with
-    #: its traceback, never as one of the paper's categories.
-    ERROR = "error"
-
-
-class MotionEvent(enum.Enum):
-    """Feedback from motion execution about the current goal."""
-
-    NONE = "none"
-    REACHED = "reached"
-    FAILED = "failed"
-    INVALIDATED = "invalidated"
 
 
 class Stage(enum.Enum):
@@ -134,13 +101,28 @@ class SubgoalProposal:
 SamplerFn = Callable[[PolicyInputs], SubgoalProposal]
 
 
+class SamplerMemory(Protocol):
+    """A sampler whose answers depend on what it did before (a random
+    generator, the goals it was told had failed): the behaviour keeps what
+    `save_state` returns in its `BehaviourState` and gives it back with
+    `load_state` before every step, so the Context holds the sampler's
+    memory. A saved state must not change afterwards (the behaviour's states
+    share it)."""
+
+    def save_state(self) -> object: ...
+
+    def load_state(self, state: object) -> None: ...
+
+
 @dc.dataclass
 class SubgoalSamplers:
-    """The three injectable goal generators."""
+    """The three injectable goal generators, and those of their objects that
+    remember something between calls (`SamplerMemory`)."""
 
     grasp: SamplerFn
     pregrasp: SamplerFn
     observe: SamplerFn
+    memory: tuple[SamplerMemory, ...] = ()
 
 
 @dc.dataclass
@@ -171,63 +153,88 @@ class BehaviourConfig:
                 raise ValueError(f"BehaviourConfig.{f.name} must be >= 0, got {getattr(self, f.name)}")
 
 
-@dc.dataclass(frozen=True)
-class SubgoalCommand:
-    """The policy's output (the value of the SubgoalPolicy's goal port).
-
-    Attributes:
-        goal_id: increments whenever the goal changes.
-        q_goal: (11,) goal configuration (the current q while idle or terminal).
-        motion: "plan" (whole-body planner), "linear" (straight joint-space
-            approach or lift), or "hold".
-        phase: the current `Phase`.
-        gripper_opening: commanded finger gap [m].
-        head: (2,) pan/tilt that sees the target from the goal, or NaN.
-        failure: the failure category (NONE unless phase is FAILED).
-        reason: a human-readable reason for the last transition.
-    """
-
-    goal_id: int
-    q_goal: np.ndarray
-    motion: str
-    phase: Phase
-    gripper_opening: float
-    head: np.ndarray
-    failure: FailureCategory = FailureCategory.NONE
-    reason: str = ""
-
-    @staticmethod
-    def initial() -> "SubgoalCommand":
-        """The command before the policy's first update (goal 0, IDLE): hold
-        still with the gripper open; also the model value of goal ports."""
-        return SubgoalCommand(0, np.full(layout.NQ, np.nan), "hold", Phase.IDLE, layout.GRIPPER_MAX_OPENING,
-                              np.full(2, np.nan))
-
-
-@dc.dataclass(frozen=True)
-class MotionFeedback:
-    """What the motion layer reports about goal ``goal_id`` (the value of the
-    planner's ``motion_feedback`` output, the policy's input of that name)."""
-
-    goal_id: int = -1
-    event: MotionEvent = MotionEvent.NONE
+def _stage_counts() -> dict:
+    return {s: 0 for s in Stage}
 
 
 @dc.dataclass
-class _State:
-    """Mutable state shared by the tree's behaviours."""
+class BehaviourState:
+    """Everything a behaviour remembers between steps: the SubgoalPolicy's
+    abstract state in the Context.
 
-    inputs: PolicyInputs | None = None
-    proposal: SubgoalProposal | None = None
-    proposal_stage: Stage | None = None
+    A step never mutates the state it is given: it works on a `copy` and
+    returns that. Copies of a state may therefore share it, and
+    ``copy.deepcopy`` (how Drake clones an abstract state value) returns the
+    state itself: cloning a Context costs nothing here.
+
+    Attributes:
+        phase, goal_id, q_goal, head, reason: the current goal (see `SubgoalCommand`).
+        q_grasp, q_lift: the grasp and lift configurations of the grasp being executed.
+        close_started: when the gripper began to close [s].
+        total_failures: motion failures so far.
+        invalidations: goal invalidations since the last reached goal.
+        history: (time, phase, reason) of every transition.
+        last_failures: the last failure (reason, category) of each `Stage`.
+        motion_failures, goals_issued: per `Stage`.
+        grasp_blocked_at: the base xy from which a grasp motion failed (the
+            grasp stage waits until the base moved `unblock_distance`).
+        failure, failure_reason: the failure category and reason once FAILED.
+        error: the traceback of a sampler that raised ("" if none did).
+        stage_index, refund, same_goal_replans, grasp_sampling_since: the
+            baseline strategies' progress (`vamg_drake.policy.strategies`).
+        samplers: the samplers' saved memory (`SamplerMemory.save_state`).
+        inputs, proposal, proposal_stage: the step in progress (None between steps).
+    """
+
+    phase: Phase = Phase.IDLE
+    goal_id: int = 0
+    q_goal: np.ndarray | None = None
+    q_grasp: np.ndarray | None = None
+    q_lift: np.ndarray | None = None
+    head: np.ndarray = dc.field(default_factory=lambda: np.full(2, np.nan))
+    close_started: float | None = None
+    reason: str = ""
+    total_failures: int = 0
+    invalidations: int = 0
+    history: tuple[tuple[float, str, str], ...] = ()
     last_failures: dict = dc.field(default_factory=dict)
-    motion_failures: dict = dc.field(default_factory=lambda: {s: 0 for s in Stage})
-    goals_issued: dict = dc.field(default_factory=lambda: {s: 0 for s in Stage})
+    motion_failures: dict = dc.field(default_factory=_stage_counts)
+    goals_issued: dict = dc.field(default_factory=_stage_counts)
     grasp_blocked_at: np.ndarray | None = None
     failure: FailureCategory = FailureCategory.NONE
     failure_reason: str = ""
-    #: The traceback of a sampler that raised ("" if none did); ends the episode as ERROR.
     error: str = ""
+    stage_index: int = 0
+    refund: bool = False
+    same_goal_replans: int = 0
+    grasp_sampling_since: float | None = None
+    samplers: tuple = ()
+    inputs: PolicyInputs | None = None
+    proposal: SubgoalProposal | None = None
+    proposal_stage: Stage | None = None
+
+    def copy(self) -> "BehaviourState":
+        """A copy that a step may change (the arrays are replaced, never written, by a step)."""
+        return dc.replace(self, last_failures=dict(self.last_failures), motion_failures=dict(self.motion_failures),
+                          goals_issued=dict(self.goals_issued))
+
+    def __deepcopy__(self, memo) -> "BehaviourState":
+        return self  # immutable once a step returned it (see the class docstring)
+
+    @property
+    def stage_failures(self) -> dict[str, tuple[str, str]]:
+        """The last failure reason and category of each stage, by name (for logs)."""
+        return {s.value: (r, c.value) for s, (r, c) in self.last_failures.items()}
+
+    @property
+    def motion_failure_counts(self) -> dict[str, int]:
+        """`motion_failures` by stage name."""
+        return {s.value: n for s, n in self.motion_failures.items()}
+
+    @property
+    def goals_issued_counts(self) -> dict[str, int]:
+        """`goals_issued` by stage name."""
+        return {s.value: n for s, n in self.goals_issued.items()}
 
 
 class StageAllowed(py_trees.behaviour.Behaviour):
@@ -242,7 +249,7 @@ class StageAllowed(py_trees.behaviour.Behaviour):
         reason = self.owner._stage_block_reason(self.stage)
         if reason:
             self.feedback_message = reason
-            self.owner._state.last_failures.setdefault(self.stage, (reason, FailureCategory.NONE))
+            self.owner._s.last_failures.setdefault(self.stage, (reason, FailureCategory.NONE))
             return py_trees.common.Status.FAILURE
         self.feedback_message = "allowed"
         return py_trees.common.Status.SUCCESS
@@ -258,7 +265,7 @@ class GenerateGoal(py_trees.behaviour.Behaviour):
         self.owner = owner
 
     def update(self) -> py_trees.common.Status:
-        state = self.owner._state
+        state = self.owner._s
         try:
             proposal = self.sampler(state.inputs)
         except Exception as e:  # noqa: BLE001 - a sampler bug ends the episode as a recorded error
@@ -282,7 +289,7 @@ class FailLeaf(py_trees.behaviour.Behaviour):
         self.owner = owner
 
     def update(self) -> py_trees.common.Status:
-        state = self.owner._state
+        state = self.owner._s
         state.failure, state.failure_reason = self.owner._failure_category()
         self.feedback_message = f"{state.failure.value}: {state.failure_reason}"
         return py_trees.common.Status.FAILURE
@@ -290,6 +297,14 @@ class FailLeaf(py_trees.behaviour.Behaviour):
 
 class SubgoalBehaviour:
     """The subgoal policy's core: a py_trees tree plus the grasp execution phases.
+
+    The object is the behaviour's fixed structure (the samplers, the config and
+    the tree); what changes lives in a `BehaviourState` that `step` takes and
+    returns. The tree's nodes keep only the statuses of their last tick, for
+    `tree_status`: every tick starts at the root (no node has memory, and
+    every leaf returns SUCCESS or FAILURE at once), so the tree itself carries
+    nothing from one step to the next. Its leaves read and write the state of
+    the step in progress.
 
     Args:
         samplers: the grasp, pre-grasp and observe goal generators.
@@ -299,7 +314,9 @@ class SubgoalBehaviour:
     def __init__(self, samplers: SubgoalSamplers, config: BehaviourConfig | None = None) -> None:
         self.config = config or BehaviourConfig()
         self.config.__post_init__()  # YAML-loaded configs skip __post_init__
-        self._state = _State()
+        self._memory = tuple(samplers.memory)
+        self._initial_samplers = tuple(m.save_state() for m in self._memory)
+        self._s: BehaviourState | None = None  # the state of the step in progress
         self.root = py_trees.composites.Selector("Subgoal", memory=False)
         for stage, sampler, name in (
             (Stage.GRASP, samplers.grasp, "Grasp"),
@@ -311,63 +328,58 @@ class SubgoalBehaviour:
             self.root.add_child(seq)
         self.root.add_child(FailLeaf(self))
         self.tree = py_trees.trees.BehaviourTree(self.root)
-        self.phase = Phase.IDLE
-        self.goal_id = 0
-        self.q_goal: np.ndarray | None = None
-        self.q_grasp: np.ndarray | None = None
-        self.q_lift: np.ndarray | None = None
-        self.head = np.full(2, np.nan)
-        self.close_started: float | None = None
-        self.reason = ""
-        self.total_failures = 0
-        self.invalidations = 0
-        self.history: list[tuple[float, str, str]] = []  # (time, phase, reason)
+
+    def initial_state(self) -> BehaviourState:
+        """The state before the first step (IDLE, no goal; the samplers as built)."""
+        return BehaviourState(samplers=self._initial_samplers)
 
     # -- inspection ---------------------------------------------------------
 
-    def tree_status(self) -> str:
+    def tree_status(self, state: BehaviourState | None = None) -> str:
         """The tree's last tick as ASCII (statuses and feedback messages)."""
         return py_trees.display.unicode_tree(self.root, show_status=True)
 
-    @property
-    def stage_failures(self) -> dict[str, tuple[str, str]]:
-        """The last failure reason and category of each stage (for logs)."""
-        return {s.value: (r, c.value) for s, (r, c) in self._state.last_failures.items()}
-
-    @property
-    def motion_failures(self) -> dict[str, int]:
-        return {s.value: n for s, n in self._state.motion_failures.items()}
-
-    @property
-    def goals_issued(self) -> dict[str, int]:
-        return {s.value: n for s, n in self._state.goals_issued.items()}
-
     # -- stepping -----------------------------------------------------------
 
-    def step(self, inputs: PolicyInputs, event: MotionEvent = MotionEvent.NONE) -> SubgoalCommand:
-        """Advances the policy with new inputs and optional motion feedback."""
-        self._state.inputs = inputs
-        if self.phase in TERMINAL:
+    def step(self, state: BehaviourState, inputs: PolicyInputs,
+             event: MotionEvent = MotionEvent.NONE) -> tuple[BehaviourState, SubgoalCommand]:
+        """(the next state, the command): advances the policy with new inputs and optional motion feedback."""
+        s = state.copy()
+        s.inputs = inputs
+        for memory, saved in zip(self._memory, s.samplers):
+            memory.load_state(saved)
+        self._s = s
+        try:
+            command = self._advance(inputs, event)
+        finally:
+            self._s = None
+        s.samplers = tuple(m.save_state() for m in self._memory)
+        s.inputs = s.proposal = s.proposal_stage = None
+        return s, command
+
+    def _advance(self, inputs: PolicyInputs, event: MotionEvent) -> SubgoalCommand:
+        s = self._s
+        if s.phase in TERMINAL:
             return self._command(inputs)
-        need_goal = self.phase == Phase.IDLE
+        need_goal = s.phase == Phase.IDLE
         if event == MotionEvent.REACHED:
-            self.invalidations = 0
+            s.invalidations = 0
             need_goal = self._on_reached(inputs)
         elif event == MotionEvent.FAILED:
             need_goal = self._on_failed(inputs)
         elif event == MotionEvent.INVALIDATED:
             need_goal = self._on_invalidated(inputs)
-        if self.phase == Phase.GRASP_CLOSE and self.close_started is not None:
-            if inputs.time - self.close_started >= self.config.close_duration:
-                self._set_goal(inputs, Phase.GRASP_LIFT, self.q_lift, "gripper closed: lifting")
-        if need_goal and self.phase not in TERMINAL:
+        if s.phase == Phase.GRASP_CLOSE and s.close_started is not None:
+            if inputs.time - s.close_started >= self.config.close_duration:
+                self._set_goal(inputs, Phase.GRASP_LIFT, s.q_lift, "gripper closed: lifting")
+        if need_goal and s.phase not in TERMINAL:
             self._tick(inputs)
-        if self._state.error and self.phase != Phase.FAILED:
-            self._terminate(inputs, FailureCategory.ERROR, self._state.error)
+        if s.error and s.phase != Phase.FAILED:
+            self._terminate(inputs, FailureCategory.ERROR, s.error)
         return self._command(inputs)
 
     def _tick(self, inputs: PolicyInputs) -> None:
-        state = self._state
+        state = self._s
         state.proposal, state.proposal_stage = None, None
         self.tree.tick()
         if state.proposal is None:
@@ -375,7 +387,7 @@ class SubgoalBehaviour:
             return
         stage, p = state.proposal_stage, state.proposal
         state.goals_issued[stage] += 1
-        self.head = np.full(2, np.nan) if p.head is None else np.asarray(p.head, float)
+        self._s.head = np.full(2, np.nan) if p.head is None else np.asarray(p.head, float)
         if stage == Stage.GRASP:
             self._start_grasp(inputs, p, "grasp goal found: moving to the pre-grasp pose")
         elif stage == Stage.PREGRASP:
@@ -385,49 +397,50 @@ class SubgoalBehaviour:
 
     def _on_invalidated(self, inputs: PolicyInputs) -> bool:
         """The map invalidated the goal: True when a new goal must be chosen."""
-        self.invalidations += 1
-        if self.invalidations > self.config.max_invalidations:
+        self._s.invalidations += 1
+        if self._s.invalidations > self.config.max_invalidations:
             self._terminate(inputs, FailureCategory.PLANNING, "the map invalidated the goal too often")
             return False
-        need_goal = self.phase not in (Phase.GRASP_CLOSE, Phase.GRASP_LIFT)
+        need_goal = self._s.phase not in (Phase.GRASP_CLOSE, Phase.GRASP_LIFT)
         # A goal the map invalidated does not use up its stage's goal budget.
-        stage = {Phase.PREGRASP: Stage.PREGRASP, Phase.OBSERVE: Stage.OBSERVE}.get(self.phase)
-        if need_goal and stage is not None and self._state.goals_issued[stage] > 0:
-            self._state.goals_issued[stage] -= 1
-        self._transition(inputs, self.phase, "goal invalidated by the map: resampling")
+        stage = {Phase.PREGRASP: Stage.PREGRASP, Phase.OBSERVE: Stage.OBSERVE}.get(self._s.phase)
+        if need_goal and stage is not None and self._s.goals_issued[stage] > 0:
+            self._s.goals_issued[stage] -= 1
+        self._transition(inputs, self._s.phase, "goal invalidated by the map: resampling")
         return need_goal
 
     def _start_grasp(self, inputs: PolicyInputs, p: SubgoalProposal, reason: str) -> None:
         """Starts the grasp execution phases with a grasp proposal (GRASP_MOVE first)."""
-        self.q_grasp = np.asarray(p.q_grasp, float)
-        self.q_lift = self.q_grasp.copy()
-        self.q_lift[layout.TORSO] = min(layout.Q_UPPER[layout.TORSO], self.q_grasp[layout.TORSO] + self.config.lift_height)
+        self._s.q_grasp = np.asarray(p.q_grasp, float)
+        self._s.q_lift = self._s.q_grasp.copy()
+        self._s.q_lift[layout.TORSO] = min(layout.Q_UPPER[layout.TORSO],
+                                           self._s.q_grasp[layout.TORSO] + self.config.lift_height)
         self._set_goal(inputs, Phase.GRASP_MOVE, p.q_goal, reason)
 
     def _on_reached(self, inputs: PolicyInputs) -> bool:
-        if self.phase == Phase.GRASP_MOVE:
-            self._set_goal(inputs, Phase.GRASP_APPROACH, self.q_grasp, "pre-grasp reached: linear approach")
-        elif self.phase == Phase.GRASP_APPROACH:
-            self.close_started = inputs.time
-            self._set_goal(inputs, Phase.GRASP_CLOSE, self.q_grasp, "grasp pose reached: closing")
-        elif self.phase == Phase.GRASP_LIFT:
+        if self._s.phase == Phase.GRASP_MOVE:
+            self._set_goal(inputs, Phase.GRASP_APPROACH, self._s.q_grasp, "pre-grasp reached: linear approach")
+        elif self._s.phase == Phase.GRASP_APPROACH:
+            self._s.close_started = inputs.time
+            self._set_goal(inputs, Phase.GRASP_CLOSE, self._s.q_grasp, "grasp pose reached: closing")
+        elif self._s.phase == Phase.GRASP_LIFT:
             self._transition(inputs, Phase.SUCCEEDED, "lifted")
-        elif self.phase in (Phase.PREGRASP, Phase.OBSERVE):
+        elif self._s.phase in (Phase.PREGRASP, Phase.OBSERVE):
             # New base, new views: the grasp stage is worth another try.
-            self._state.grasp_blocked_at = None
-            if self.phase == Phase.OBSERVE:
-                self._state.motion_failures[Stage.PREGRASP] = 0
-            self._transition(inputs, Phase.IDLE, f"{self.phase.value} goal reached")
+            self._s.grasp_blocked_at = None
+            if self._s.phase == Phase.OBSERVE:
+                self._s.motion_failures[Stage.PREGRASP] = 0
+            self._transition(inputs, Phase.IDLE, f"{self._s.phase.value} goal reached")
             return True
         return False
 
     def _on_failed(self, inputs: PolicyInputs) -> bool:
-        stage = {Phase.PREGRASP: Stage.PREGRASP, Phase.OBSERVE: Stage.OBSERVE}.get(self.phase, Stage.GRASP)
-        state = self._state
+        stage = {Phase.PREGRASP: Stage.PREGRASP, Phase.OBSERVE: Stage.OBSERVE}.get(self._s.phase, Stage.GRASP)
+        state = self._s
         state.motion_failures[stage] += 1
-        self.total_failures += 1
-        if self.total_failures > self.config.max_total_failures:
-            self._terminate(inputs, FailureCategory.PLANNING, f"{self.total_failures} motion failures")
+        self._s.total_failures += 1
+        if self._s.total_failures > self.config.max_total_failures:
+            self._terminate(inputs, FailureCategory.PLANNING, f"{self._s.total_failures} motion failures")
             return False
         if stage == Stage.GRASP:
             state.grasp_blocked_at = np.asarray(inputs.q, float)[layout.BASE_XY].copy()
@@ -437,7 +450,7 @@ class SubgoalBehaviour:
     # -- tree helpers -------------------------------------------------------
 
     def _stage_block_reason(self, stage: Stage) -> str:
-        state, cfg = self._state, self.config
+        state, cfg = self._s, self.config
         if state.motion_failures[stage] >= cfg.max_motion_failures and stage != Stage.GRASP:
             return f"{stage.value}: {state.motion_failures[stage]} motion failures"
         if stage == Stage.GRASP:
@@ -455,7 +468,7 @@ class SubgoalBehaviour:
         return ""
 
     def _failure_category(self) -> tuple[FailureCategory, str]:
-        state = self._state
+        state = self._s
         reasons = "; ".join(f"{s.value}: {r}" for s, (r, _) in state.last_failures.items())
         if any(n >= self.config.max_motion_failures for n in state.motion_failures.values()):
             return FailureCategory.PLANNING, reasons
@@ -473,41 +486,41 @@ class SubgoalBehaviour:
     # -- bookkeeping --------------------------------------------------------
 
     def _set_goal(self, inputs: PolicyInputs, phase: Phase, q_goal: np.ndarray, reason: str) -> None:
-        self.goal_id += 1
-        self.q_goal = np.asarray(q_goal, dtype=float).copy()
+        self._s.goal_id += 1
+        self._s.q_goal = np.asarray(q_goal, dtype=float).copy()
         self._transition(inputs, phase, reason)
 
     def _transition(self, inputs: PolicyInputs, phase: Phase, reason: str) -> None:
-        self.phase = phase
-        self.reason = reason
-        self.history.append((float(inputs.time), phase.value, reason))
+        self._s.phase = phase
+        self._s.reason = reason
+        self._s.history = (*self._s.history, (float(inputs.time), phase.value, reason))
 
     def _terminate(self, inputs: PolicyInputs, category: FailureCategory, reason: str) -> None:
-        if self._state.error:  # a sampler raised: whatever else failed, the episode is an error
-            category, reason = FailureCategory.ERROR, self._state.error
-        self._state.failure = category if category != FailureCategory.NONE else FailureCategory.SUBGOAL
-        self._state.failure_reason = reason
-        self.goal_id += 1
-        self.q_goal = np.asarray(inputs.q, float).copy()
-        self._transition(inputs, Phase.FAILED, f"{self._state.failure.value}: {reason}")
+        if self._s.error:  # a sampler raised: whatever else failed, the episode is an error
+            category, reason = FailureCategory.ERROR, self._s.error
+        self._s.failure = category if category != FailureCategory.NONE else FailureCategory.SUBGOAL
+        self._s.failure_reason = reason
+        self._s.goal_id += 1
+        self._s.q_goal = np.asarray(inputs.q, float).copy()
+        self._transition(inputs, Phase.FAILED, f"{self._s.failure.value}: {reason}")
 
     def _command(self, inputs: PolicyInputs) -> SubgoalCommand:
-        closed = self.phase in (Phase.GRASP_CLOSE, Phase.GRASP_LIFT, Phase.SUCCEEDED)
-        if self.phase in (Phase.IDLE, Phase.FAILED, Phase.SUCCEEDED) or self.q_goal is None:
-            motion, q_goal = "hold", np.asarray(inputs.q, float).copy() if self.q_goal is None else self.q_goal
-        elif self.phase in (Phase.GRASP_APPROACH, Phase.GRASP_LIFT):
-            motion, q_goal = "linear", self.q_goal
-        elif self.phase == Phase.GRASP_CLOSE:
-            motion, q_goal = "hold", self.q_goal
+        closed = self._s.phase in (Phase.GRASP_CLOSE, Phase.GRASP_LIFT, Phase.SUCCEEDED)
+        if self._s.phase in (Phase.IDLE, Phase.FAILED, Phase.SUCCEEDED) or self._s.q_goal is None:
+            motion, q_goal = "hold", np.asarray(inputs.q, float).copy() if self._s.q_goal is None else self._s.q_goal
+        elif self._s.phase in (Phase.GRASP_APPROACH, Phase.GRASP_LIFT):
+            motion, q_goal = "linear", self._s.q_goal
+        elif self._s.phase == Phase.GRASP_CLOSE:
+            motion, q_goal = "hold", self._s.q_goal
         else:
-            motion, q_goal = "plan", self.q_goal
+            motion, q_goal = "plan", self._s.q_goal
         return SubgoalCommand(
-            goal_id=self.goal_id,
+            goal_id=self._s.goal_id,
             q_goal=q_goal.copy(),
             motion=motion,
-            phase=self.phase,
+            phase=self._s.phase,
             gripper_opening=0.0 if closed else layout.GRIPPER_MAX_OPENING,
-            head=self.head.copy(),
-            failure=self._state.failure if self.phase == Phase.FAILED else FailureCategory.NONE,
-            reason=self.reason,
+            head=self._s.head.copy(),
+            failure=self._s.failure if self._s.phase == Phase.FAILED else FailureCategory.NONE,
+            reason=self._s.reason,
         )

@@ -4,10 +4,11 @@ Every method of the paper shares the world, the map, the whole-body planner,
 the tracker and the gaze optimizer; they differ in how the subgoals are chosen
 (``DiagramConfig.strategy``) and in a few system settings
 (`vamg_drake.diagram.apply_strategy_defaults`). Each strategy is a behaviour
-with the interface of `SubgoalBehaviour` (``step``, ``phase``, ``goal_id``,
-``history``, ...) and reuses
-its grasp execution (GRASP_MOVE planned to the pre-grasp pose -> GRASP_APPROACH
-linear -> GRASP_CLOSE -> GRASP_LIFT) and its command building. Only the choice
+with the interface of `SubgoalBehaviour` (``initial_state``, ``step(state,
+inputs, event) -> (state, command)``; its progress is in the
+`BehaviourState`) and reuses its grasp execution (GRASP_MOVE planned to
+the pre-grasp pose -> GRASP_APPROACH linear -> GRASP_CLOSE -> GRASP_LIFT) and
+its command building. Only the choice
 of goals differs; no py_trees tree is ticked.
 
 Strategies (paper "Baselines" and appendix "System-Level Comparisons"):
@@ -61,10 +62,12 @@ import numpy as np
 from vamg_drake.policy.behaviour_tree import (
     GRASP_PHASES,
     BehaviourConfig,
+    BehaviourState,
     FailureCategory,
     Phase,
     PolicyInputs,
     SamplerFn,
+    SamplerMemory,
     Stage,
     SubgoalBehaviour,
     SubgoalProposal,
@@ -146,6 +149,8 @@ class StrategySamplers:
             (None: an invalidated goal is always treated as in collision).
         reject: tells ``navigate`` that the motion to this goal failed, so it
             proposes another (None: the sampler is random enough by itself).
+        memory: the samplers' objects that remember something between calls
+            (`SamplerMemory`: a random generator, the rejected goals).
     """
 
     grasp: SamplerFn
@@ -153,6 +158,7 @@ class StrategySamplers:
     observe: SamplerFn
     goal_is_free: GoalCheckFn | None = None
     reject: Callable[[np.ndarray], None] | None = None
+    memory: tuple[SamplerMemory, ...] = ()
 
 
 class StrategyBehaviour(SubgoalBehaviour):
@@ -173,25 +179,24 @@ class StrategyBehaviour(SubgoalBehaviour):
 
     def __init__(self, samplers: StrategySamplers, config: BehaviourConfig | None = None,
                  strategy_config: StrategyConfig | None = None) -> None:
-        super().__init__(SubgoalSamplers(samplers.grasp, samplers.navigate, samplers.observe), config)
+        super().__init__(SubgoalSamplers(samplers.grasp, samplers.navigate, samplers.observe, samplers.memory),
+                         config)
         self.samplers = samplers
         self.strategy_config = strategy_config or StrategyConfig()
-        self._stage_index = 0
-        self._refund = False  # the next sample replaces an invalidated goal: no budget used
-        self._same_goal_replans = 0  # replans of the current goal after invalidations
 
     # -- inspection ---------------------------------------------------------
 
     @property
     def stage(self) -> Stage:
-        """The stage the strategy is in (or last was in)."""
-        return self.STAGES[self._stage_index]
+        """The stage of the step in progress."""
+        return self.STAGES[self._s.stage_index]
 
-    def tree_status(self) -> str:
-        """The strategy's stage sequence and progress (there is no tree)."""
-        marks = ["[*]" if i == self._stage_index else "[ ]" for i in range(len(self.STAGES))]
+    def tree_status(self, state: BehaviourState | None = None) -> str:
+        """The strategy's stage sequence and the progress of ``state`` (there is no tree)."""
+        state = state or self.initial_state()
+        marks = ["[*]" if i == state.stage_index else "[ ]" for i in range(len(self.STAGES))]
         stages = " -> ".join(f"{m} {s.value}" for m, s in zip(marks, self.STAGES))
-        return f"{self.NAME}: {stages}; phase {self.phase.value}; {self.reason}"
+        return f"{self.NAME}: {stages}; phase {state.phase.value}; {state.reason}"
 
     # -- SubgoalBehaviour hooks -----------------------------------------------
 
@@ -208,36 +213,37 @@ class StrategyBehaviour(SubgoalBehaviour):
             self._on_sample_failed(inputs, stage, p)
 
     def _on_reached(self, inputs: PolicyInputs) -> bool:
-        if self.phase in GRASP_PHASES:
+        if self._s.phase in GRASP_PHASES:
             return super()._on_reached(inputs)
         done = self.stage
-        self._stage_index = min(self._stage_index + 1, len(self.STAGES) - 1)
+        self._s.stage_index = min(self._s.stage_index + 1, len(self.STAGES) - 1)
         self._transition(inputs, Phase.IDLE, f"{done.value} goal reached: next {self.stage.value}")
         return True
 
     def _on_failed(self, inputs: PolicyInputs) -> bool:
         stage = self.stage
-        self._state.motion_failures[stage] += 1
-        self.total_failures += 1
-        if self.total_failures > self.config.max_total_failures:
-            self._terminate(inputs, FailureCategory.PLANNING, f"{self.total_failures} motion failures")
+        self._s.motion_failures[stage] += 1
+        self._s.total_failures += 1
+        if self._s.total_failures > self.config.max_total_failures:
+            self._terminate(inputs, FailureCategory.PLANNING, f"{self._s.total_failures} motion failures")
             return False
-        if stage != Stage.GRASP and self.samplers.reject is not None and self.q_goal is not None:
-            self.samplers.reject(self.q_goal)
+        if stage != Stage.GRASP and self.samplers.reject is not None and self._s.q_goal is not None:
+            self.samplers.reject(self._s.q_goal)
         return self._after_motion_failure(inputs, stage)
 
     def _on_invalidated(self, inputs: PolicyInputs) -> bool:
-        self.invalidations += 1
-        if self.invalidations > self.config.max_invalidations:
+        self._s.invalidations += 1
+        if self._s.invalidations > self.config.max_invalidations:
             self._terminate(inputs, FailureCategory.PLANNING, "the map invalidated the goal too often")
             return False
-        if self.phase not in (Phase.PREGRASP, Phase.OBSERVE, Phase.GRASP_MOVE):
-            self._transition(inputs, self.phase, "map update during a linear or holding phase: continuing")
+        if self._s.phase not in (Phase.PREGRASP, Phase.OBSERVE, Phase.GRASP_MOVE):
+            self._transition(inputs, self._s.phase, "map update during a linear or holding phase: continuing")
             return False
-        if self._same_goal_replans < self.strategy_config.max_same_goal_replans and self._goal_still_free(inputs):
+        if self._s.same_goal_replans < self.strategy_config.max_same_goal_replans and self._goal_still_free(inputs):
             # Replanning to the same goal: a new goal id makes the planner plan afresh.
-            self._same_goal_replans += 1
-            self._set_goal(inputs, self.phase, self.q_goal, "path invalidated by the map: replanning to the same goal")
+            self._s.same_goal_replans += 1
+            self._set_goal(inputs, self._s.phase, self._s.q_goal,
+                           "path invalidated by the map: replanning to the same goal")
             return False
         return self._after_goal_invalid(inputs, self.stage)
 
@@ -257,7 +263,7 @@ class StrategyBehaviour(SubgoalBehaviour):
         return True
 
     def _after_goal_invalid(self, inputs: PolicyInputs, stage: Stage) -> bool:
-        self._refund = True
+        self._s.refund = True
         self._transition(inputs, Phase.IDLE, f"the map put the {stage.value} goal in collision: resampling")
         return True
 
@@ -269,18 +275,18 @@ class StrategyBehaviour(SubgoalBehaviour):
         try:
             p = sampler(inputs)
         except Exception as e:  # noqa: BLE001 - a sampler bug ends the episode as a recorded error
-            self._state.error = self._state.error or f"{stage.value} sampler raised:\n{traceback.format_exc()}"
+            self._s.error = self._s.error or f"{stage.value} sampler raised:\n{traceback.format_exc()}"
             p = SubgoalProposal.failure(f"{stage.value} sampler raised {type(e).__name__}: {e}", FailureCategory.ERROR)
         if not p.success:
-            self._state.last_failures[stage] = (p.failure_reason, p.category)
+            self._s.last_failures[stage] = (p.failure_reason, p.category)
         return p
 
     def _issue(self, inputs: PolicyInputs, stage: Stage, p: SubgoalProposal) -> None:
-        self._same_goal_replans = 0
-        if not self._refund:
-            self._state.goals_issued[stage] += 1
-        self._refund = False
-        self.head = np.full(2, np.nan) if p.head is None else np.asarray(p.head, float)
+        self._s.same_goal_replans = 0
+        if not self._s.refund:
+            self._s.goals_issued[stage] += 1
+        self._s.refund = False
+        self._s.head = np.full(2, np.nan) if p.head is None else np.asarray(p.head, float)
         if stage == Stage.GRASP:
             self._start_grasp(inputs, p, f"{self.NAME}: grasp goal found: moving to the pre-grasp pose")
         elif stage == Stage.PREGRASP:
@@ -289,21 +295,21 @@ class StrategyBehaviour(SubgoalBehaviour):
             self._set_goal(inputs, Phase.OBSERVE, p.q_goal, f"{self.NAME}: observe goal found")
 
     def _budget_reason(self, stage: Stage) -> str:
-        if self._refund:
+        if self._s.refund:
             return ""
-        n, budget = self._state.goals_issued[stage], self._budget(stage)
+        n, budget = self._s.goals_issued[stage], self._budget(stage)
         return f"{stage.value}: budget of {budget} goals used" if n >= budget else ""
 
     def _goal_still_free(self, inputs: PolicyInputs) -> bool:
-        if self.samplers.goal_is_free is None or self.q_goal is None:
+        if self.samplers.goal_is_free is None or self._s.q_goal is None:
             return False
         try:
-            return bool(self.samplers.goal_is_free(inputs, self.q_goal))
+            return bool(self.samplers.goal_is_free(inputs, self._s.q_goal))
         except Exception:  # noqa: BLE001 - a failing check counts as "not free"
             return False
 
     def _motion_failed_often(self) -> bool:
-        return any(n >= self.config.max_motion_failures for n in self._state.motion_failures.values())
+        return any(n >= self.config.max_motion_failures for n in self._s.motion_failures.values())
 
     def _sample_failure_category(self, p: SubgoalProposal) -> FailureCategory:
         """PLANNING after repeated motion failures, else the sampler's own category."""
@@ -312,7 +318,7 @@ class StrategyBehaviour(SubgoalBehaviour):
         return p.category if p.category != FailureCategory.NONE else FailureCategory.SUBGOAL
 
     def _exhausted_category(self) -> FailureCategory:
-        return FailureCategory.PLANNING if self.total_failures > 0 else FailureCategory.SUBGOAL
+        return FailureCategory.PLANNING if self._s.total_failures > 0 else FailureCategory.SUBGOAL
 
 
 class DirectGraspingBehaviour(StrategyBehaviour):
@@ -342,33 +348,28 @@ class NavAndManipBehaviour(StrategyBehaviour):
     STAGES = (Stage.PREGRASP, Stage.GRASP)
     NAVIGATION_GOAL = "base pose (arm stowed)"
 
-    def __init__(self, samplers: StrategySamplers, config: BehaviourConfig | None = None,
-                 strategy_config: StrategyConfig | None = None) -> None:
-        super().__init__(samplers, config, strategy_config)
-        self._grasp_sampling_since: float | None = None  # when grasp sampling from this base began
-
     def _on_sample_failed(self, inputs: PolicyInputs, stage: Stage, p: SubgoalProposal) -> None:
         # No grasp from the reached base ends the episode: navigation and
         # manipulation are decoupled, the base is not repositioned. The grasp
         # is resampled on the next ticks for `grasp_patience` seconds first,
         # while the head looks at the target from close by.
         if stage == Stage.GRASP:
-            since = self._grasp_sampling_since
+            since = self._s.grasp_sampling_since
             if since is None:
-                self._grasp_sampling_since = since = float(inputs.time)
+                self._s.grasp_sampling_since = since = float(inputs.time)
             if float(inputs.time) - since < self.strategy_config.grasp_patience:
                 return
         self._terminate(inputs, self._sample_failure_category(p), f"{stage.value}: {p.failure_reason}")
 
     def _on_reached(self, inputs: PolicyInputs) -> bool:
-        if self.phase not in GRASP_PHASES:
-            self._grasp_sampling_since = None  # a new base: a new grasp-sampling window
+        if self._s.phase not in GRASP_PHASES:
+            self._s.grasp_sampling_since = None  # a new base: a new grasp-sampling window
         return super()._on_reached(inputs)
 
     def _after_motion_failure(self, inputs: PolicyInputs, stage: Stage) -> bool:
-        if stage == Stage.GRASP and self._state.motion_failures[stage] > self.config.max_motion_failures:
+        if stage == Stage.GRASP and self._s.motion_failures[stage] > self.config.max_motion_failures:
             self._terminate(inputs, FailureCategory.PLANNING,
-                            f"{self._state.motion_failures[stage]} arm motions from the reached base failed")
+                            f"{self._s.motion_failures[stage]} arm motions from the reached base failed")
             return False
         what = "grasp from the same base" if stage == Stage.GRASP else "base pose"
         self._transition(inputs, Phase.IDLE, f"motion to the {stage.value} goal failed: resampling the {what}")
@@ -392,7 +393,7 @@ class ClosedLoopReplanningBehaviour(StrategyBehaviour):
         return self.config.max_pregrasp_goals
 
     def _back_to_pregrasp(self, inputs: PolicyInputs, reason: str) -> bool:
-        self._stage_index = 0
+        self._s.stage_index = 0
         self._transition(inputs, Phase.IDLE, reason)
         return True
 
@@ -407,7 +408,7 @@ class ClosedLoopReplanningBehaviour(StrategyBehaviour):
         return self._back_to_pregrasp(inputs, f"motion to the {stage.value} goal failed: resampling the pre-grasp")
 
     def _after_goal_invalid(self, inputs: PolicyInputs, stage: Stage) -> bool:
-        self._refund = True
+        self._s.refund = True
         return self._back_to_pregrasp(inputs, f"the map put the {stage.value} goal in collision: resampling the pre-grasp")
 
 
@@ -441,10 +442,17 @@ class StandoffBaseSampler:
         self.sampler = ObserveSampler(pipeline.visibility, ObserveConfig(
             costmap=pipeline.config.observe.costmap, standoff=list(config.nav_standoff),
             num_angles=config.nav_num_angles, yaw_weight=pipeline.config.observe.yaw_weight))
-        self.rejected: list[np.ndarray] = []
+        self.rejected: tuple[np.ndarray, ...] = ()  # base xy of the goals whose motion failed
 
     def reject(self, q_goal: np.ndarray) -> None:
-        self.rejected.append(np.asarray(q_goal, float)[layout.BASE_XY].copy())
+        self.rejected = (*self.rejected, np.asarray(q_goal, float)[layout.BASE_XY].copy())
+
+    def save_state(self) -> tuple[np.ndarray, ...]:
+        """`SamplerMemory`: the rejected goals."""
+        return self.rejected
+
+    def load_state(self, state: tuple[np.ndarray, ...]) -> None:
+        self.rejected = tuple(state)
 
     def __call__(self, inputs: PolicyInputs) -> SubgoalProposal:
         p_WM, q, p_WT = _finite_points(inputs), np.asarray(inputs.q, float), np.asarray(inputs.p_WT, float)
@@ -521,13 +529,14 @@ def strategy_samplers(strategy: str, pipeline: SubgoalPipeline, config: Strategy
     config = config or StrategyConfig()
     config.__post_init__()  # YAML-loaded configs skip __post_init__
     base = pipeline.samplers()
-    navigate, reject = base.pregrasp, None
+    navigate, reject, memory = base.pregrasp, None, base.memory
     if strategy == "nav_and_manip":
         standoff = StandoffBaseSampler(pipeline, config)
         navigate, reject = _timed(pipeline, "subgoal_navigate", standoff), standoff.reject
+        memory = (*memory, standoff)
     elif strategy == "capmap_placement":
         navigate = _timed(pipeline, "subgoal_navigate", CapmapBaseSampler(pipeline, config))
-    return StrategySamplers(base.grasp, navigate, base.observe, goal_check(pipeline), reject)
+    return StrategySamplers(base.grasp, navigate, base.observe, goal_check(pipeline), reject, memory)
 
 
 def make_strategy(

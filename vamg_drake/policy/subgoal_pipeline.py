@@ -114,6 +114,20 @@ class SubgoalPipelineConfig:
     enclosure_fraction: float = 0.95
 
 
+@dc.dataclass(frozen=True)
+class PipelineMemory:
+    """The `SubgoalPipeline`'s memory between samples (`SamplerMemory`): its
+    and its IK's random generator states, the grasp its last pre-grasp was
+    aimed at, and its collision check of the last map (reused while the map
+    and the base stay the same)."""
+
+    rng: dict
+    ik_rng: dict
+    aimed_grasp: tuple | None
+    collision_key: tuple | None
+    collision_fns: tuple | None
+
+
 class SubgoalPipeline:
     """Grasp / pre-grasp / observe samplers over the real components."""
 
@@ -144,7 +158,19 @@ class SubgoalPipeline:
     def samplers(self) -> SubgoalSamplers:
         return SubgoalSamplers(self._timed("subgoal_grasp", self.sample_grasp),
                                self._timed("subgoal_pregrasp", self.sample_pregrasp),
-                               self._timed("subgoal_observe", self.sample_observe))
+                               self._timed("subgoal_observe", self.sample_observe), memory=(self,))
+
+    def save_state(self) -> "PipelineMemory":
+        """`SamplerMemory`: what the samplers' next answers depend on besides their inputs."""
+        return PipelineMemory(self.rng.bit_generator.state, self.ik.rng.bit_generator.state, self._aimed_grasp,
+                              self._cache_key, self._cache)
+
+    def load_state(self, state: "PipelineMemory") -> None:
+        """`SamplerMemory`: restores a `save_state`."""
+        self.rng.bit_generator.state = state.rng
+        self.ik.rng.bit_generator.state = state.ik_rng
+        self._aimed_grasp, self._cache_key, self._cache = state.aimed_grasp, state.collision_key, state.collision_fns
+        self._candidates = None
 
     def _timed(self, name: str, sampler):
         def timed(inputs: PolicyInputs) -> SubgoalProposal:

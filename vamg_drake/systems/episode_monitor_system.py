@@ -6,8 +6,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.geometry import QueryObject
 from pydrake.systems.framework import EventStatus, LeafSystem
 
-from vamg_drake.policy.behaviour_tree import SubgoalCommand
-from vamg_drake.systems.planner_system import PlannedTrajectory
+from vamg_drake.planning.motion_messages import PlannedTrajectory, SubgoalCommand
 from vamg_drake.world.episode_monitor import (
     GRASP_INITIATED_PHASES,
     Contact,
@@ -33,6 +32,11 @@ class EpisodeMonitor(LeafSystem):
 
     When the outcome becomes final, the monitor's `done` event returns
     `EventStatus.ReachedTermination` so `Simulator.AdvanceTo` stops.
+
+    State: the `EpisodeJudge` (its verdict, lift timers and highest lift) is
+    the Context's abstract state ``judge``, copied with the Context and reset
+    by `Diagram.SetDefaultContext`; the monitor's own plant context is
+    scratch that every tick overwrites with the plant's state before use.
     """
 
     def __init__(self, world: World, time_limit: float, config: EpisodeMonitorConfig | None = None):
@@ -43,7 +47,6 @@ class EpisodeMonitor(LeafSystem):
         self._plant_context = plant.CreateDefaultContext()
         target = world.scene.target_body
         rest = plant.EvalBodyPoseInWorld(self._plant_context, target).translation()[2]
-        self.judge = EpisodeJudge(rest, time_limit, self.config)
         self._target = target
         inspector = world.scene_graph.model_inspector()
         self._robot_link: dict = {}
@@ -62,6 +65,7 @@ class EpisodeMonitor(LeafSystem):
         self._gripper_port = self.DeclareVectorInputPort("gripper_command", 1)
         self._policy_port = self.DeclareAbstractInputPort("policy_goal", AbstractValue.Make(SubgoalCommand.initial()))
         self._planner_port = self.DeclareAbstractInputPort("planner_status", AbstractValue.Make(PlannedTrajectory()))
+        self._judge = self.DeclareAbstractState(AbstractValue.Make(EpisodeJudge(rest, time_limit, self.config)))
         self._outcome = self.DeclareAbstractState(AbstractValue.Make(EpisodeOutcome()))
         self._grasp_started = self.DeclareAbstractState(AbstractValue.Make(False))
         self.DeclarePeriodicUnrestrictedUpdateEvent(self.config.period, 0.0, self._tick)
@@ -102,7 +106,8 @@ class EpisodeMonitor(LeafSystem):
                     depth=pair.depth,
                 )
             )
-        outcome = self.judge.update(context.get_time(), contacts, target_height, grasp_started, report)
+        judge: EpisodeJudge = state.get_mutable_abstract_state(self._judge).get_mutable_value()
+        outcome = judge.update(context.get_time(), contacts, target_height, grasp_started, report)
         state.get_mutable_abstract_state(self._outcome).set_value(outcome)
         state.get_mutable_abstract_state(self._grasp_started).set_value(grasp_started)
         if outcome.done:

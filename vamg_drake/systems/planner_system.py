@@ -1,21 +1,16 @@
-"""WholeBodyPlanner system: the motion layer between the subgoal policy and the tracker.
+"""WholeBodyPlanner system: the LeafSystem of the motion layer between the subgoal policy and the tracker.
 
-A LeafSystem adapter over `vamg_drake.planning.whole_body_planner.WholeBodyPlanner`
-plus the small motion bookkeeping of the paper's receding-horizon loop
-(appendix "Arm Motion with Replanning"): plan on a new goal, re-check the rest
-of the trajectory on every new map, stop and replan when it is invalidated (at
-most ``max_replans`` times per goal), and report REACHED / FAILED /
-INVALIDATED to the policy. The pure decision logic lives in `MotionSupervisor`
-(plain Python, testable without Drake).
+The decisions (plan, re-check, replan, back out, approach straight, report)
+are `vamg_drake.planning.motion_supervisor.MotionSupervisor`'s; this system
+feeds it the goal, the map and the robot's configuration at a fixed period,
+keeps its `MotionState` in the Context, and keeps the planner's collision
+environment up to date with the map.
 """
 
-import collections
-from collections.abc import Callable
 import dataclasses as dc
 import functools
 import logging
 import time
-import traceback
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -23,478 +18,45 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 
 from vamg_drake.perception.raycast_map import PointMapSnapshot
 from vamg_drake.planning.collision_environment import CollisionEnvironment
-from vamg_drake.planning.sphere_collision import SphereCollisionChecker
-from vamg_drake.planning.smoothing import time_parametrize
-from vamg_drake.planning.trajectory import TimedTrajectory
-from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig, WholeBodyPlanner
-from vamg_drake.policy.behaviour_tree import MotionEvent, MotionFeedback, Phase, SubgoalCommand
+from vamg_drake.planning.motion_messages import MotionEvent, MotionFeedback, PlannedTrajectory, SubgoalCommand
+from vamg_drake.planning.motion_supervisor import MotionInputs, MotionState, MotionSupervisor, PlannerSystemConfig
+from vamg_drake.planning.whole_body_planner import WholeBodyPlanner
 from vamg_drake.policy.ik import FastIk
 from vamg_drake.robot import layout
-from vamg_drake.robot.kinematics import FetchKinematics
-from vamg_drake.robot.spheres import SphereModel
 from vamg_drake.systems.timing import ModuleTimings
 
 _log = logging.getLogger(__name__)
 
-#: `PlannedTrajectory.reason` when the planner raised (the traceback is logged).
-EXCEPTION_REASON = "exception"
-#: `PlannedTrajectory.reason` when a goal was invalidated more than `max_replans` times.
-REPLAN_LIMIT_REASON = "replan_limit"
-#: `PlannedTrajectory.reason` when a planned path takes the arm into the floor.
-FLOOR_REASON = "arm_below_floor"
-#: Links whose spheres must stay above the floor (the arm; the base's own spheres reach below it).
-ARM_LINKS = ("shoulder_pan_link", "shoulder_lift_link", "upperarm_roll_link", "elbow_flex_link",
-             "forearm_roll_link", "wrist_flex_link", "wrist_roll_link", "gripper_link")
 
-
-@functools.cache
-def _arm_spheres() -> tuple[np.ndarray, np.ndarray]:
-    """(mask (S,), unpadded radii (S,)) of the sphere model's arm spheres."""
-    spheres = SphereModel.load()
-    return np.isin(np.asarray(spheres.link_names)[spheres.link_index], ARM_LINKS), spheres.radius
-
-
-def arm_floor_clearance(checker: SphereCollisionChecker, path: np.ndarray) -> float:
-    """The lowest point of the arm's (unpadded) spheres over the configurations
-    path (K, 11) [m], from the checker's compiled sphere centres.
-
-    The map drops the floor (its points are not obstacles), so the planner's
-    checker does not see it; the motion layer checks planned paths against it.
-    """
-    arm, radius = _arm_spheres()
-    centres = checker.sphere_centers(np.atleast_2d(path))[:, arm]
-    return float(np.min(centres[..., 2] - radius[arm]))
-
-
-@dc.dataclass(frozen=True, eq=False)
-class PlannedTrajectory:
-    """The value of the `trajectory` output port.
+@dc.dataclass(frozen=True)
+class EnvironmentState:
+    """Which map the planner's collision environment stands for (the PlannerSystem's abstract state).
 
     Attributes:
-        goal_id: the policy goal this trajectory serves (-1: none yet).
-        trajectory: timed whole-body waypoints on the simulation clock, or None
-            (hold still: no goal, a "hold" goal, or a failed plan).
-        success: whether the last planning request for goal_id succeeded.
-        reason: a `FailureReason` value, `EXCEPTION_REASON` or `REPLAN_LIMIT_REASON` when it did not.
-        map_revision: the map revision it was planned or last validated on.
-        plan_ms: wall time of the last planning call [ms].
-        replans: how often this goal was replanned after an invalidation.
-        motion: the goal's motion kind ("plan", "linear", "hold").
-        error: the traceback when the planner raised.
-        retreat: the trajectory backs out along the robot's own recent path
-            (the map put the start in collision); the goal is planned from its end.
-        approach_index: from this waypoint on, the gripper may touch the
-            target's points: the straight approach that ends a pre-grasp or
-            grasp-move motion (`PlannerSystemConfig.approach_retreat`), or 0
-            for a grasp-move that starts around the target; -1: nowhere.
+        snapshot: the map the planning environment is built from (the
+            environment itself is a cache keyed by this snapshot).
+        key: the revision of `snapshot` (-1: no map; None: no environment yet).
+        revision: the map revision the current trajectory was last checked on.
+        time: when the trajectory was last checked against a map [s].
     """
 
-    goal_id: int = -1
-    trajectory: TimedTrajectory | None = None
-    success: bool = False
-    reason: str = ""
-    map_revision: int = -1
-    plan_ms: float = 0.0
-    replans: int = 0
-    motion: str = "hold"
-    error: str = ""
-    retreat: bool = False
-    approach_index: int = -1
+    snapshot: PointMapSnapshot | None = None
+    key: int | None = None
+    revision: int = -1
+    time: float = -np.inf
+
+    def __deepcopy__(self, memo) -> "EnvironmentState":
+        return self  # immutable (the snapshot too)
 
 
-@dc.dataclass
-class PlannerSystemConfig:
-    """Parameters of the WholeBodyPlanner system.
+@dc.dataclass(frozen=True)
+class _Environment:
+    """The planning environment built from one snapshot, with its sorted voxel keys and points."""
 
-    Attributes:
-        period: how often the system looks for work (new goal, new map) [s].
-        floor_z: map points below this height are the floor, not obstacles [m].
-        target_clearance: map points this close to the target are the object
-            to grasp, which the gripper may touch (the rest of the robot may
-            not) only where it is meant to: on the straight approach that ends
-            a pre-grasp or grasp-move motion (`approach_retreat`), and on a
-            grasp-move motion that starts with the gripper already around the
-            target (from the reached pre-grasp). Everywhere else they are
-            obstacles to the gripper too (static s0001: with the exemption on
-            every motion the palm swept through the target between two
-            pre-grasp poses; static s0008: the gripper touched the table while
-            unfolding the arm from the stow to a grasp's pre-grasp) [m].
-        reach_tolerance: every joint of q within this of the goal reports REACHED.
-        linear_reach_tolerance: the same for "linear" goals (the grasp approach
-            and lift), which must end on the grasp pose: 0.03 rad per arm joint
-            left the gripper 1.5-2 cm off it (static s0003).
-        settle_time: after the trajectory's end, how long the robot may take to
-            settle within `reach_tolerance` [s], plus `settle_time_fraction`
-            of the trajectory's duration (the tracker follows the path, not
-            the clock, and falls behind on long motions: seed 0 was 3.5 s
-            late on a 6.4 s motion ending in a three-point turn) ...
-        settle_tolerance: ... after which a q within this looser tolerance still
-            counts as REACHED; farther away the motion FAILED.
-        max_replans: replans after invalidations per goal (the appendix's K).
-        replan_period: > 0 replans towards the goal at this period whether or not
-            the trajectory was invalidated (the closed-loop-replanning baseline) [s].
-        linear_speed_fraction: linear motions (approach, lift) move at this
-            fraction of the joint velocity limits.
-        warm_up: load the planner's compiled kernels when the system is built
-            (else the episode's first searches pay it, ~12 ms from numba's
-            cache, seconds when compiling).
-        floor_clearance: a planned path whose arm spheres come closer to the
-            floor than this is rejected (FAILED, `FLOOR_REASON`); the floor is
-            not in the map (static s0000: the gripper touched the floor) [m].
-        approach_retreat: a pre-grasp or grasp-move goal whose gripper touches
-            the target's points (the open fingers straddle the object, and the
-            sphere model fills the space between them) is reached in two parts: a path free
-            of every point to the goal with the gripper drawn back this far
-            along its approach axis (or half as far where the arm cannot
-            reach back so far; IK, base and torso fixed), then the
-            straight joint-space approach, on which the gripper may touch the
-            target's points as the pre-grasp sampler allows. Without it such
-            goals were "in collision" for the planner, which plans pre-grasp
-            motions with the target's points as obstacles to the gripper too
-            (the pedestrian test: ten pre-grasp goals in a row) [m]; 0 = off.
-        retreat_history_time: when the map puts the start in collision (points
-            seen late, inside the sphere model that bulges past the robot's
-            geometry), the robot backs out along at most this much of its own
-            recent path [s] to the first configuration the padded spheres
-            find free, and the goal is planned from there (static s0001: three
-            pre-grasp motions failed at once and the episode ended); 0 = off.
-        recheck_period: the trajectory is re-checked against a newer map at
-            most this often, except when a new goal must be planned at once [s].
-        incremental_check: re-check the trajectory against only the map points
-            added (or moved) since the planning environment was built, in a
-            small distance field of their own, and rebuild the planning
-            environment only to plan: the rest of the path was free of the
-            older points when it was planned or last rebuilt. Rebuilding a
-            room-sized distance field costs 0.1-0.6 s and was 40 % of an
-            episode's wall time (static s0006: 82 rebuilds in 31 s).
-        planner: the planner's `PlannerConfig`.
-    """
-
-    period: float = 0.1
-    floor_z: float = 0.03
-    target_clearance: float = 0.10
-    reach_tolerance: float = 0.03
-    linear_reach_tolerance: float = 0.012
-    settle_time: float = 3.0
-    settle_time_fraction: float = 0.5
-    settle_tolerance: float = 0.12
-    max_replans: int = 8
-    replan_period: float = 0.0
-    linear_speed_fraction: float = 0.25
-    recheck_period: float = 0.3
-    incremental_check: bool = True
-    floor_clearance: float = 0.02
-    retreat_history_time: float = 20.0
-    approach_retreat: float = 0.10
-    warm_up: bool = True
-    planner: PlannerConfig = dc.field(default_factory=PlannerConfig)
-
-
-def linear_trajectory(q_from: np.ndarray, q_to: np.ndarray, t0: float, speed_fraction: float,
-                      step: float = 0.02) -> TimedTrajectory:
-    """A straight joint-space motion from q_from to q_to at a fraction of the velocity limits."""
-    q_to = q_from + layout.wrap_configuration(np.asarray(q_to, float) - q_from)
-    rate = np.asarray(layout.V_MAX, float) * speed_fraction
-    duration = max(float(np.max(np.abs(q_to - q_from) / rate)), 0.2)
-    n = max(2, int(np.ceil(duration / step)) + 1)
-    s = np.linspace(0.0, 1.0, n)
-    return TimedTrajectory(t0 + s * duration, q_from[None] + s[:, None] * (q_to - q_from)[None])
-
-
-def nearest_waypoint(trajectory: TimedTrajectory, q: np.ndarray) -> int:
-    """Index of the waypoint nearest to q (base position, heading and joints weighted alike)."""
-    d = layout.wrap_configuration(trajectory.q - q[None])
-    return int(np.argmin(np.sum(d * d, axis=1)))
-
-
-def remaining_path(trajectory: TimedTrajectory, q: np.ndarray) -> np.ndarray:
-    """The rest of the path from the robot's q: q itself, then the waypoints after the nearest one."""
-    k = nearest_waypoint(trajectory, q)
-    q0 = trajectory.q[k] + layout.wrap_configuration(q - trajectory.q[k])
-    return np.concatenate([q0[None], trajectory.q[k + 1:]])
-
-
-class MotionSupervisor:
-    """Decides, at each tick, what the motion layer does for the policy's goal.
-
-    Plain Python over a `WholeBodyPlanner`: `tick` takes the goal, q, the
-    environment revision and the time, and returns the new `PlannedTrajectory`
-    and an optional `MotionEvent` for the policy. The caller sets the planner's
-    environment before calling.
-    """
-
-    def __init__(self, planner: WholeBodyPlanner, config: PlannerSystemConfig,
-                 timings: ModuleTimings | None = None) -> None:
-        self.planner = planner
-        self.config = config
-        self.timings = timings
-        self.last_replan_time = -np.inf
-        self._history: collections.deque[tuple[float, np.ndarray]] = collections.deque()  # (t, q), for retreats
-        self._retreats: dict[int, int] = {}  # retreats per goal id
-        #: Checks (path, exempt) the rest of a path against the map of the tick,
-        #: with the gripper allowed the target's points where `exempt` (default:
-        #: the planner's environment, `WholeBodyPlanner.path_is_valid`).
-        self.path_check: Callable[[np.ndarray, bool], bool] | None = None
-        #: Called before every plan: brings the planner's environment up to date.
-        self.before_planning: Callable[[], None] | None = None
-        #: The grasp target p_WT (3,) of the approaches to it, or None.
-        self.target: np.ndarray | None = None
-        self._exempt: tuple | None = None  # (environment, its checker with the target's exemption)
-        self._ik: FastIk | None = None  # built on the first approach
-
-    def tick(self, plan: PlannedTrajectory, goal: SubgoalCommand | None, q: np.ndarray, t: float,
-             revision: int) -> tuple[PlannedTrajectory, MotionEvent]:
-        cfg = self.config
-        self._record(q, t)
-        if goal is None:
-            return plan, MotionEvent.NONE
-        if goal.goal_id != plan.goal_id:
-            return self._start(goal, q, t, revision)
-        if goal.motion == "hold" or plan.trajectory is None:
-            return plan, MotionEvent.NONE
-        if plan.retreat:
-            # Backing out along the robot's own path: then plan to the goal.
-            end = plan.trajectory.q[-1]
-            settled = np.all(np.abs(layout.wrap_configuration(q - end)) <= cfg.reach_tolerance)
-            if t >= plan.trajectory.end_time and (settled or t >= plan.trajectory.end_time + cfg.settle_time):
-                new = self._plan(goal, q, t, revision)
-                new = dc.replace(new, replans=plan.replans)
-                return new, (MotionEvent.NONE if new.success else self._failure_event(new))
-            return plan, MotionEvent.NONE
-        error = np.abs(layout.wrap_configuration(q - np.asarray(goal.q_goal, float)))
-        if t >= plan.trajectory.end_time:
-            tolerance = cfg.linear_reach_tolerance if goal.motion == "linear" else cfg.reach_tolerance
-            if np.all(error <= tolerance):
-                return plan, MotionEvent.REACHED
-            slack = cfg.settle_time + cfg.settle_time_fraction * plan.trajectory.duration
-            if t >= plan.trajectory.end_time + slack:
-                if np.all(error <= cfg.settle_tolerance):
-                    return plan, MotionEvent.REACHED
-                worst = int(np.argmax(error))
-                _log.warning("motion t=%.2f: goal %d not reached %.1f s after the trajectory ended (max error %.3f "
-                             "at %s)", t, goal.goal_id, slack, float(error[worst]),
-                             layout.WHOLE_BODY_JOINTS[worst])
-                return dc.replace(plan, trajectory=None, success=False, reason=FailureReason.TIMEOUT), MotionEvent.FAILED
-        if goal.motion != "plan":
-            return plan, MotionEvent.NONE
-        periodic = cfg.replan_period > 0 and t - self.last_replan_time >= cfg.replan_period
-        if revision == plan.map_revision and not periodic:
-            return plan, MotionEvent.NONE
-        if not periodic:
-            t0 = time.perf_counter()
-            valid = self._rest_is_valid(plan, q)
-            if self.timings is not None:
-                self.timings.add("trajectory_check", 1e3 * (time.perf_counter() - t0))
-            if valid:
-                return dc.replace(plan, map_revision=revision), MotionEvent.NONE
-        if not periodic:
-            if plan.replans >= cfg.max_replans:
-                _log.warning("motion t=%.2f: goal %d invalidated more than %d times", t, goal.goal_id, cfg.max_replans)
-                return dc.replace(plan, trajectory=None, success=False, reason=REPLAN_LIMIT_REASON), MotionEvent.FAILED
-            _log.info("motion t=%.2f: trajectory invalidated by map %d; replanning", t, revision)
-        new = self._plan(goal, q, t, revision)
-        new = dc.replace(new, replans=plan.replans + (0 if periodic else 1))
-        if periodic:
-            # The baseline keeps executing the old plan when a periodic replan fails.
-            return (new if new.success else dc.replace(plan, map_revision=revision)), MotionEvent.NONE
-        return new, (MotionEvent.INVALIDATED if new.success else self._failure_event(new))
-
-    def _rest_is_valid(self, plan: PlannedTrajectory, q: np.ndarray) -> bool:
-        """The rest of the plan from q: up to its approach (if any) without,
-        and from there with, the gripper's exemption from the target's points."""
-        check = self.path_check or self.check_path
-        k = nearest_waypoint(plan.trajectory, q)
-        rest = remaining_path(plan.trajectory, q)
-        if plan.approach_index < 0:
-            return check(rest, False)
-        split = max(plan.approach_index - k, 0)
-        return ((split == 0 or check(rest[:split + 1], False))
-                and (split >= len(rest) - 1 or check(rest[split:], True)))
-
-    def check_path(self, path: np.ndarray, exempt: bool) -> bool:
-        """`WholeBodyPlanner.path_is_valid` on the planner's environment, or
-        with the gripper allowed the target's points (`exempt`)."""
-        checker = self.exempt_checker() if exempt else None
-        if exempt and checker is None:
-            return False
-        return self.planner.path_is_valid(path, checker=checker)
-
-    def exempt_checker(self) -> SphereCollisionChecker | None:
-        """The planner's checker whose environment lets the gripper touch the
-        points near `target`; None without a target."""
-        env = self.planner.checker.env
-        if self.target is None:
-            return None
-        if self._exempt is None or self._exempt[0] is not env or not np.array_equal(self._exempt[2], self.target):
-            exempt_env = env.with_grasp_target(self.target, self.config.target_clearance)
-            self._exempt = (env, self.planner.checker.with_environment(exempt_env), np.array(self.target))
-        return self._exempt[1]
-
-    def _plan_with(self, env: CollisionEnvironment, q: np.ndarray, q_goal: np.ndarray):
-        """`WholeBodyPlanner.plan` in another environment (the planner's is restored)."""
-        own = self.planner.checker.env
-        self.planner.set_environment(env)
-        try:
-            return self.planner.plan(q, q_goal)
-        finally:
-            self.planner.set_environment(own)
-
-    def _plan_via_approach(self, q: np.ndarray, q_goal: np.ndarray) -> tuple | None:
-        """(plan result, approach index, distance): a plan to the approach's
-        entry (`_approach_entry`) followed by the straight approach; None
-        without an entry or a plan to it."""
-        entry = self._approach_entry(q_goal)
-        if entry is None:
-            return None
-        to_entry = self.planner.plan(q, entry[0])
-        if not to_entry.success:
-            return None
-        path = to_entry.trajectory
-        last = linear_trajectory(path.q[-1], q_goal, path.times[-1], self.config.linear_speed_fraction)
-        entry_index = path.q.shape[0] - 1
-        # The entry is a stop for the tracker: the straight approach is only
-        # straight if the robot is at its entry before it starts. The
-        # look-ahead cuts a turn that is no corner (under `corner_angle`): by
-        # 0.06 rad on a 45-degree arm turn (tests/test_tracker.py), which puts
-        # the fingers a few cm off the approach line, beside the target.
-        joined = TimedTrajectory(np.concatenate([path.times, last.times[1:]]), np.concatenate([path.q, last.q[1:]]),
-                                 stops=(*path.stops, entry_index))
-        return dc.replace(to_entry, trajectory=joined), entry_index, entry[1]
-
-    def _approach_entry(self, q_goal: np.ndarray) -> tuple[np.ndarray, float] | None:
-        """(configuration, distance): the gripper `approach_retreat` (or, where
-        the arm cannot reach that far back, half of it) back along its approach
-        axis from q_goal (base and torso fixed), the straight approach from it
-        to q_goal valid with the gripper's exemption; else None."""
-        exempt = self.exempt_checker()
-        if exempt is None or self.config.approach_retreat <= 0.0:
-            return None
-        self._ik = self._ik or FastIk()
-        X_WG = FetchKinematics.instance().gripper_pose(q_goal)
-        for distance in (self.config.approach_retreat, 0.5 * self.config.approach_retreat):
-            X = X_WG.copy()
-            X[:3, 3] -= distance * X[:3, 0]
-            q_entry, ok = self._ik.solve_arm(X[None], q_goal)
-            if not ok[0]:
-                continue
-            segment = linear_trajectory(q_entry[0], q_goal, 0.0, self.config.linear_speed_fraction).q
-            if self.planner.path_is_valid(segment, checker=exempt):
-                return q_entry[0], distance
-        return None
-
-    def _record(self, q: np.ndarray, t: float) -> None:
-        """Keeps the robot's configurations of the last `retreat_history_time` seconds."""
-        horizon = self.config.retreat_history_time
-        if horizon <= 0.0:
-            return
-        if not self._history or np.max(np.abs(layout.wrap_configuration(q - self._history[-1][1]))) > 1e-3:
-            self._history.append((t, np.array(q, dtype=float)))
-        while self._history and self._history[0][0] < t - horizon:
-            self._history.popleft()
-
-    def _retreat(self, goal: SubgoalCommand, q: np.ndarray) -> TimedTrajectory | None:
-        """The robot's recent path backwards from q to the latest configuration
-        the padded checker finds free (the robot was there, so the real
-        geometry between was free), at `linear_speed_fraction` of the limits;
-        None without one, or after two retreats for this goal."""
-        if self.config.retreat_history_time <= 0.0 or self._retreats.get(goal.goal_id, 0) >= 2:
-            return None
-        if len(self._history) < 2:
-            return None
-        back = np.array([h for _, h in reversed(self._history)])
-        path = [np.array(q, dtype=float)]
-        for h in back:  # unwrapped continuous joints: no 2 pi jump between waypoints
-            path.append(path[-1] + layout.wrap_configuration(h - path[-1]))
-        path = np.array(path)
-        free = np.asarray(self.planner.checker.is_free(path[1:]), dtype=bool)
-        if not free.any():
-            return None
-        path = path[: int(np.argmax(free)) + 2]
-        self._retreats[goal.goal_id] = self._retreats.get(goal.goal_id, 0) + 1
-        return time_parametrize(path, layout.V_MAX * self.config.linear_speed_fraction)
-
-    @staticmethod
-    def _failure_event(plan: PlannedTrajectory) -> MotionEvent:
-        """A goal that the map has put in collision is invalidated (the policy
-        resamples without counting a motion failure); other failures are FAILED."""
-        return MotionEvent.INVALIDATED if plan.reason == FailureReason.GOAL_IN_COLLISION else MotionEvent.FAILED
-
-    def _start(self, goal: SubgoalCommand, q: np.ndarray, t: float, revision: int) -> tuple[PlannedTrajectory, MotionEvent]:
-        if goal.motion == "plan":
-            plan = self._plan(goal, q, t, revision)
-            return plan, (MotionEvent.NONE if plan.success else self._failure_event(plan))
-        if goal.motion == "linear":
-            try:
-                traj = linear_trajectory(q, np.asarray(goal.q_goal, float), t, self.config.linear_speed_fraction)
-            except ValueError as e:
-                _log.error("motion t=%.2f: bad linear goal %d: %s", t, goal.goal_id, e)
-                return PlannedTrajectory(goal.goal_id, None, False, FailureReason.INVALID_INPUT, revision,
-                                         motion="linear"), MotionEvent.FAILED
-            return PlannedTrajectory(goal.goal_id, traj, True, "", revision, motion="linear"), MotionEvent.NONE
-        return PlannedTrajectory(goal.goal_id, None, True, "", revision, motion=goal.motion), MotionEvent.NONE
-
-    def _plan(self, goal: SubgoalCommand, q: np.ndarray, t: float, revision: int) -> PlannedTrajectory:
-        self.last_replan_time = t
-        t0 = time.perf_counter()
-        wall_hits = self.planner.wall_limit_hits
-        try:
-            return self._plan_goal(goal, q, t, revision, t0)
-        finally:
-            if self.timings is not None:
-                # Attempts the planner's wall-clock safety net stopped: the
-                # episode is not reproducible when this module appears.
-                for _ in range(self.planner.wall_limit_hits - wall_hits):
-                    self.timings.add("planner_wall_limit", 1e3 * (time.perf_counter() - t0))
-
-    def _plan_goal(self, goal: SubgoalCommand, q: np.ndarray, t: float, revision: int, t0: float) -> PlannedTrajectory:
-        approach_index = -1
-        try:
-            if self.before_planning is not None:
-                self.before_planning()  # a bad map raises here: a recorded error
-            q_goal = np.asarray(goal.q_goal, dtype=float)
-            exempt = self.exempt_checker() if goal.phase in (Phase.PREGRASP, Phase.GRASP_MOVE) else None
-            if (exempt is not None and goal.phase == Phase.GRASP_MOVE
-                    and not self.planner.unpadded_checker().is_free(q[None])[0]):
-                # From the reached pre-grasp, the gripper already around the
-                # target: the whole (short) motion may touch its points.
-                result = self._plan_with(exempt.env, q, q_goal)
-                approach_index = 0
-            else:
-                result = self.planner.plan(q, q_goal)
-            if (not result.success and result.reason == FailureReason.GOAL_IN_COLLISION
-                    and exempt is not None and approach_index < 0):
-                via = self._plan_via_approach(q, q_goal)
-                if via is not None:
-                    result, approach_index, distance = via
-                    _log.info("motion t=%.2f: goal %d: planned to %.2f m back along the approach, then straight in",
-                              t, goal.goal_id, distance)
-        except Exception:  # noqa: BLE001 - a planner bug ends the episode as a recorded error (the judge)
-            _log.error("WholeBodyPlanner t=%.2f: planner raised on goal %d:\n%s", t, goal.goal_id, traceback.format_exc())
-            return PlannedTrajectory(goal.goal_id, None, False, EXCEPTION_REASON, revision,
-                                     1e3 * (time.perf_counter() - t0), motion="plan", error=traceback.format_exc())
-        if self.timings is not None:
-            self.timings.add("planner", result.timings["total"])
-        if not result.success:
-            _log.warning("WholeBodyPlanner t=%.2f: goal %d failed: %s (%s)", t, goal.goal_id, result.reason,
-                         result.message)
-            if result.reason == FailureReason.START_IN_COLLISION:
-                retreat = self._retreat(goal, q)
-                if retreat is not None:
-                    _log.info("motion t=%.2f: goal %d: backing out %.2f m / %d waypoints along the robot's own path",
-                              t, goal.goal_id, float(np.sum(np.hypot(*np.diff(retreat.q[:, :2], axis=0).T))),
-                              retreat.q.shape[0])
-                    return PlannedTrajectory(goal.goal_id, retreat.shifted(t), True, "", revision,
-                                             result.timings["total"], motion="plan", retreat=True)
-            return PlannedTrajectory(goal.goal_id, None, False, result.reason or FailureReason.TIMEOUT, revision,
-                                     result.timings["total"], motion="plan")
-        lowest = arm_floor_clearance(self.planner.checker, result.trajectory.q)
-        if lowest < self.config.floor_clearance:
-            _log.warning("WholeBodyPlanner t=%.2f: goal %d: the planned path takes the arm %.3f m from the floor "
-                         "(needs %.3f); rejected", t, goal.goal_id, lowest, self.config.floor_clearance)
-            return PlannedTrajectory(goal.goal_id, None, False, FLOOR_REASON, revision, result.timings["total"],
-                                     motion="plan")
-        return PlannedTrajectory(goal.goal_id, result.trajectory.shifted(t), True, "", revision,
-                                 result.timings["total"], motion="plan", approach_index=approach_index)
+    snapshot: PointMapSnapshot | None
+    env: CollisionEnvironment
+    keys: np.ndarray
+    points: np.ndarray
 
 
 class PlannerSystem(LeafSystem):
@@ -520,8 +82,16 @@ class PlannerSystem(LeafSystem):
     current q; when it is invalidated the system replans (INVALIDATED) or
     reports FAILED. A planner exception is logged with its traceback and
     becomes a FAILED motion with reason `EXCEPTION_REASON`; the system never
-    raises in an episode. The planner core (with its collision environment)
-    lives in the system object: use one Context per system instance.
+    raises in an episode.
+
+    State: the `MotionState` (the plan, the retreat history, the approach IK's
+    random generator) and the `EnvironmentState` (the map the planning
+    environment stands for, when it was last checked) are Context abstract
+    state, advanced by the periodic event. The planner, its compiled kernels
+    and the collision environment built from the state's map snapshot are
+    resources and caches (the environment is rebuilt when the Context's
+    snapshot is not the one it was built from), so one built system runs in
+    any number of Contexts.
     """
 
     def __init__(self, config: PlannerSystemConfig | None = None, planner: WholeBodyPlanner | None = None,
@@ -531,48 +101,64 @@ class PlannerSystem(LeafSystem):
         self._planner = planner or WholeBodyPlanner.for_fetch(CollisionEnvironment(), self._config.planner)
         if self._config.warm_up:
             self._planner.warm_up()
-        self._supervisor = MotionSupervisor(self._planner, self._config, timings)
+        self._supervisor = MotionSupervisor(self._planner, self._config, FastIk(), timings)
+        self._timings = timings
+        self._environment: _Environment | None = None  # cache: the environment of one snapshot
         self._goal_port = self.DeclareAbstractInputPort("goal", AbstractValue.Make(SubgoalCommand.initial()))
         self._map_port = self.DeclareAbstractInputPort("point_map", AbstractValue.Make(PointMapSnapshot.empty()))
         self._q_port = self.DeclareVectorInputPort("robot_configuration", layout.NQ)
         self._target_port = self.DeclareVectorInputPort("target", 3)
-        self._plan_index = self.DeclareAbstractState(AbstractValue.Make(PlannedTrajectory()))
+        self._motion_index = self.DeclareAbstractState(AbstractValue.Make(self._supervisor.initial_state()))
+        self._environment_index = self.DeclareAbstractState(AbstractValue.Make(EnvironmentState()))
         self._feedback_index = self.DeclareAbstractState(AbstractValue.Make(MotionFeedback()))
-        self.DeclareStateOutputPort("trajectory", self._plan_index)
+        motion_ticket = {self.abstract_state_ticket(self._motion_index)}
+        self.DeclareAbstractOutputPort(
+            "trajectory", lambda: AbstractValue.Make(PlannedTrajectory()),
+            lambda context, value: value.set_value(self._motion(context).plan), motion_ticket)
         self.DeclareAbstractOutputPort(  # None (hold still) is one of its values, hence the model
             "timed_trajectory", lambda: AbstractValue.Make(None),
-            lambda context, value: value.set_value(context.get_abstract_state(self._plan_index).get_value().trajectory),
-            {self.abstract_state_ticket(self._plan_index)},
-        )
+            lambda context, value: value.set_value(self._motion(context).plan.trajectory), motion_ticket)
         self.DeclareStateOutputPort("motion_feedback", self._feedback_index)
         self.DeclarePeriodicUnrestrictedUpdateEvent(self._config.period, 0.0, self._update)
-        self._env_key = None
-        self._env_revision = -1
-        self._env_time = -np.inf
-        self._timings = timings
 
     @property
     def planner(self) -> WholeBodyPlanner:
         return self._planner
 
-    def _set_map(self, snapshot) -> int:
-        """Rebuilds the planning environment when the map revision changed."""
-        revision = -1 if snapshot is None else int(snapshot.revision)
-        if revision != self._env_key:
+    def _motion(self, context) -> MotionState:
+        return context.get_abstract_state(self._motion_index).get_value()
+
+    def motion_state(self, context) -> MotionState:
+        """The motion supervisor's state in this system's `context`."""
+        return self._motion(context)
+
+    def _use_environment(self, snapshot: PointMapSnapshot | None) -> _Environment:
+        """Makes the planner's environment the one built from `snapshot` (built when not cached)."""
+        cached = self._environment
+        if cached is None or cached.snapshot is not snapshot:
             t0 = time.perf_counter()
             if snapshot is None or snapshot.num_points == 0:
-                env = CollisionEnvironment()
-                self._env_points = (np.zeros(0, np.int64), np.zeros((0, 3)))
+                cached = _Environment(snapshot, CollisionEnvironment(), np.zeros(0, np.int64), np.zeros((0, 3)))
             else:
                 keys, points = self._obstacles(snapshot)
-                env = CollisionEnvironment.from_points(points, resolution=float(snapshot.voxel_size))
                 order = np.argsort(keys, kind="stable")
-                self._env_points = (keys[order], points[order])
-            self._planner.set_environment(env)
-            self._env_key = revision
+                cached = _Environment(snapshot, CollisionEnvironment.from_points(
+                    points, resolution=float(snapshot.voxel_size)), keys[order], points[order])
+            self._environment = cached
             if self._timings is not None:
                 self._timings.add("planner_environment", 1e3 * (time.perf_counter() - t0))
-        return revision
+        if self._planner.checker.env is not cached.env:
+            self._planner.set_environment(cached.env)
+        return cached
+
+    def _set_map(self, environment: EnvironmentState, snapshot) -> EnvironmentState:
+        """The environment state for `snapshot`: the planning environment
+        rebuilt when the map revision changed, else the one of `environment`."""
+        revision = -1 if snapshot is None else int(snapshot.revision)
+        if revision != environment.key:
+            environment = dc.replace(environment, snapshot=snapshot, key=revision)
+        self._use_environment(environment.snapshot)
+        return environment
 
     def _obstacles(self, snapshot) -> tuple[np.ndarray, np.ndarray]:
         """The map's voxel keys and points above `floor_z`."""
@@ -583,15 +169,16 @@ class PlannerSystem(LeafSystem):
     #: With more new points than this fraction of the map, the environment is rebuilt instead.
     _REBUILD_FRACTION = 0.25
 
-    def _new_points_check(self, snapshot):
+    def _new_points_check(self, environment: EnvironmentState, snapshot, p_WT: np.ndarray | None):
         """A path check (path, exempt) against only the map points of
         `snapshot` that the planning environment lacks (new voxels, or a
         voxel's point moved), with the grasp target and support floor of the
         planning environment (or, where `exempt`, of the supervisor's
         `exempt_checker`); None when they are too many (`_REBUILD_FRACTION`)."""
+        built = self._use_environment(environment.snapshot)
         t0 = time.perf_counter()
         keys, points = self._obstacles(snapshot)
-        old_keys, old_points = self._env_points
+        old_keys, old_points = built.keys, built.points
         i = np.minimum(np.searchsorted(old_keys, keys), max(old_keys.shape[0] - 1, 0))
         same = np.zeros(keys.shape[0], dtype=bool)
         if old_keys.shape[0]:
@@ -605,7 +192,7 @@ class PlannerSystem(LeafSystem):
             return lambda path, exempt: True
         delta = CollisionEnvironment.from_points(new, resolution=float(snapshot.voxel_size))
         checker = self._planner.checker
-        exempt = self._supervisor.exempt_checker()
+        exempt = self._supervisor.exempt_checker(p_WT)
         checkers = {False: checker.with_environment(delta), True: None if exempt is None else checker.with_environment(
             dc.replace(delta, grasp_target=exempt.env.grasp_target, grasp_target_radius=exempt.env.grasp_target_radius,
                        grasp_target_floor=exempt.env.grasp_target_floor))}
@@ -615,14 +202,16 @@ class PlannerSystem(LeafSystem):
         return check
 
     def _update(self, context, state) -> EventStatus:
-        plan: PlannedTrajectory = context.get_abstract_state(self._plan_index).get_value()
+        motion = self._motion(context)
+        plan = motion.plan
         goal = self._goal_port.Eval(context) if self._goal_port.HasValue(context) else None
         if goal is None:
             return EventStatus.Succeeded()
         q = np.asarray(self._q_port.Eval(context), dtype=float)
         if not np.all(np.isfinite(q)):
             _log.error("WholeBodyPlanner: robot_configuration is not finite (%s); stopping", q)
-            state.get_mutable_abstract_state(self._plan_index).set_value(dc.replace(plan, trajectory=None))
+            state.get_mutable_abstract_state(self._motion_index).set_value(
+                dc.replace(motion, plan=dc.replace(plan, trajectory=None)))
             return EventStatus.Succeeded()
         snapshot = self._map_port.Eval(context) if self._map_port.HasValue(context) else None
         p_WT = None
@@ -630,30 +219,42 @@ class PlannerSystem(LeafSystem):
             p = np.asarray(self._target_port.Eval(context), dtype=float)
             p_WT = p if np.all(np.isfinite(p)) else None
         t = context.get_time()
-        self._supervisor.target = p_WT  # for the approaches to the target (`exempt_checker`)
+        environment: EnvironmentState = context.get_abstract_state(self._environment_index).get_value()
+        # The planner's environment is the one of this Context's state (a cache of another Context's is replaced).
+        if environment.key is not None:
+            self._use_environment(environment.snapshot)
         new_goal = goal.goal_id != plan.goal_id
-        refresh = new_goal or t - self._env_time >= self._config.recheck_period - 1e-9
-        self._supervisor.path_check = None
-        # Whatever the supervisor plans is planned on this tick's map.
-        self._supervisor.before_planning = functools.partial(self._set_map, snapshot)
+        refresh = new_goal or t - environment.time >= self._config.recheck_period - 1e-9
+        path_check = None
         if refresh:
             revision = -1 if snapshot is None else int(snapshot.revision)
             try:
                 check = None
-                if (self._config.incremental_check and not new_goal and self._env_key is not None
-                        and snapshot is not None and revision != self._env_revision):
-                    check = self._new_points_check(snapshot)
+                if (self._config.incremental_check and not new_goal and environment.key is not None
+                        and snapshot is not None and revision != environment.revision):
+                    check = self._new_points_check(environment, snapshot, p_WT)
                 if check is not None:
-                    self._supervisor.path_check = check  # the new points only; rebuilt to plan
-                    self._env_revision = revision
+                    path_check = check  # the new points only; rebuilt to plan
+                    environment = dc.replace(environment, revision=revision)
                 else:
-                    self._env_revision = self._set_map(snapshot)
+                    environment = self._set_map(environment, snapshot)
+                    environment = dc.replace(environment, revision=revision)
             except ValueError as e:
                 _log.error("WholeBodyPlanner: bad map (%s)", e)
                 return EventStatus.Succeeded()
-            self._env_time = t
-        plan, event = self._supervisor.tick(plan, goal, q, t, self._env_revision)
-        state.get_mutable_abstract_state(self._plan_index).set_value(plan)
+            environment = dc.replace(environment, time=t)
+        # Whatever the supervisor plans is planned on this tick's map.
+        planned_on = []
+
+        def before_planning() -> None:
+            planned_on.append(self._set_map(environment, snapshot))
+
+        motion, event = self._supervisor.step(motion, MotionInputs(goal, q, t, environment.revision, p_WT, path_check,
+                                                                   before_planning))
+        if planned_on:
+            environment = dc.replace(environment, snapshot=planned_on[-1].snapshot, key=planned_on[-1].key)
+        state.get_mutable_abstract_state(self._motion_index).set_value(motion)
+        state.get_mutable_abstract_state(self._environment_index).set_value(environment)
         if event != MotionEvent.NONE:
             state.get_mutable_abstract_state(self._feedback_index).set_value(MotionFeedback(goal.goal_id, event))
         return EventStatus.Succeeded()

@@ -8,15 +8,8 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
 from vamg_drake.perception.raycast_map import PointMapSnapshot
-from vamg_drake.policy.behaviour_tree import (
-    BehaviourConfig,
-    MotionEvent,
-    MotionFeedback,
-    PolicyInputs,
-    SubgoalBehaviour,
-    SubgoalCommand,
-    stage_name,
-)
+from vamg_drake.planning.motion_messages import MotionEvent, MotionFeedback, SubgoalCommand, stage_name
+from vamg_drake.policy.behaviour_tree import BehaviourConfig, BehaviourState, PolicyInputs, SubgoalBehaviour
 from vamg_drake.policy.kinematic_maps import KinematicMaps
 from vamg_drake.policy.strategies import BEHAVIOURS, StrategyConfig, make_strategy
 from vamg_drake.policy.subgoal_pipeline import SubgoalPipeline, SubgoalPipelineConfig
@@ -55,10 +48,14 @@ class SubgoalPolicy(LeafSystem):
         - goal (SubgoalCommand)
         - phase (str: "grasp" | "pre_grasp" | "observe" | "idle" | "succeeded" | "failed")
         - gripper_command (1-vector: finger gap [m])
+        - history (tuple of (time, phase, reason): the behaviour's transitions)
 
-    The behaviour tree (``behaviour``) lives in the system object, not in the
-    Context: use one Context per SubgoalPolicy instance. Its tree status,
-    history and failure counts are inspectable for tests and logs. Without a
+    State: the behaviour's `BehaviourState` (phase, goals, failure counts,
+    history, the samplers' random generators) is the Context's abstract state
+    ``behaviour``, advanced by `SubgoalBehaviour.step` in the periodic event;
+    the ``behaviour`` object is the fixed structure (samplers, tree), so one
+    built system runs in any number of Contexts. `behaviour_state` and
+    `tree_status` inspect a Context for tests and logs. Without a
     connected ``motion_feedback``, a goal is reached when q is within
     ``reach_tolerance`` of it; motion failures then need the feedback port.
     A sampler that raises ends the policy as FAILED with category ERROR (its
@@ -78,16 +75,30 @@ class SubgoalPolicy(LeafSystem):
         self._command_index = self.DeclareAbstractState(AbstractValue.Make(SubgoalCommand.initial()))
         self._handled_index = self.DeclareAbstractState(AbstractValue.Make(MotionFeedback()))
         self._gripper_index = self.DeclareDiscreteState(BasicVector([layout.GRIPPER_MAX_OPENING]))
+        self._behaviour_index = self.DeclareAbstractState(AbstractValue.Make(behaviour.initial_state()))
         self.DeclareStateOutputPort("goal", self._command_index)
         self.DeclareAbstractOutputPort(
             "phase", lambda: AbstractValue.Make(""), self._calc_phase, {self.abstract_state_ticket(self._command_index)}
         )
         self.DeclareStateOutputPort("gripper_command", self._gripper_index)
+        self.DeclareAbstractOutputPort(
+            "history", lambda: AbstractValue.Make(()),
+            lambda context, value: value.set_value(self.behaviour_state(context).history),
+            {self.abstract_state_ticket(self._behaviour_index)})
         self.DeclarePeriodicUnrestrictedUpdateEvent(self._config.period, 0.0, self._update)
 
     @property
     def behaviour(self) -> SubgoalBehaviour:
+        """The behaviour's fixed structure (its state is in the Context)."""
         return self._behaviour
+
+    def behaviour_state(self, context) -> BehaviourState:
+        """The behaviour's state in this system's `context`."""
+        return context.get_abstract_state(self._behaviour_index).get_value()
+
+    def tree_status(self, context) -> str:
+        """The behaviour's progress in `context` (for a tree: its last tick) as text."""
+        return self._behaviour.tree_status(self.behaviour_state(context))
 
     def _calc_phase(self, context, value: AbstractValue) -> None:
         value.set_value(stage_name(context.get_abstract_state(self._command_index).get_value().phase))
@@ -119,10 +130,11 @@ class SubgoalPolicy(LeafSystem):
             return EventStatus.Succeeded()
         inputs = PolicyInputs(context.get_time(), q, p_WM, target, cloud)
         event = self._event(context, q, command, state)
-        new_command = self._behaviour.step(inputs, event)
+        behaviour, new_command = self._behaviour.step(self.behaviour_state(context), inputs, event)
+        state.get_mutable_abstract_state(self._behaviour_index).set_value(behaviour)
         if new_command.goal_id != command.goal_id or new_command.phase != command.phase:
             _log.info("SubgoalPolicy t=%.2f: %s (%s)", context.get_time(), new_command.phase.value, new_command.reason)
-            skipped = {stage: reason for stage, (reason, _) in self._behaviour.stage_failures.items()}
+            skipped = {stage: reason for stage, (reason, _) in behaviour.stage_failures.items()}
             if skipped:
                 _log.info("SubgoalPolicy t=%.2f: stage failures so far: %s", context.get_time(), skipped)
         state.get_mutable_abstract_state(self._command_index).set_value(new_command)

@@ -14,6 +14,10 @@ class ModuleTimings:
     def add(self, module: str, ms: float) -> None:
         self.samples.setdefault(module, []).append(float(ms))
 
+    def clear(self) -> None:
+        """Forgets every sample (a new episode on the same diagram)."""
+        self.samples.clear()
+
     def summary(self) -> dict[str, dict[str, float]]:
         """{module: {count, median_ms, p95_ms, total_ms}}."""
         out = {}

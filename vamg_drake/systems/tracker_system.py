@@ -1,6 +1,7 @@
 """WholeBodyTracker: the LeafSystem adapter over
 `vamg_drake.control.whole_body_tracker.WholeBodyTrackerCore`."""
 
+import copy
 import dataclasses as dc
 import logging
 
@@ -28,6 +29,23 @@ def _unwrap_trajectory(value):
     if hasattr(value, "trajectory"):
         return _unwrap_trajectory(value.trajectory)
     return value
+
+
+class TrackerMemory:
+    """The tracker's abstract state: its core (the loaded path and the progress
+    along it) and the trajectory object it loaded (compared by identity).
+
+    A copy copies the core's scalars and shares its arrays, which the core
+    replaces but never writes, and the trajectory, which is immutable: cloning
+    a Context costs a few microseconds.
+    """
+
+    def __init__(self, core: WholeBodyTrackerCore, loaded=None) -> None:
+        self.core = core
+        self.loaded = loaded
+
+    def __deepcopy__(self, memo) -> "TrackerMemory":
+        return TrackerMemory(copy.copy(self.core), self.loaded)
 
 
 @dc.dataclass(frozen=True, eq=False)
@@ -75,8 +93,9 @@ class WholeBodyTracker(LeafSystem):
     the gaze. Each trajectory may hold at most ``look.max_wait`` seconds in
     all (a cell can stay occluded). The gate's state is in the Context.
 
-    The core (the loaded path and its progress) lives in the system object:
-    use one Context per system instance. It is reset by the initialization event.
+    State: the core (the loaded path and the progress along it) with the
+    trajectory it loaded (`TrackerMemory`), the look gate and the command are
+    Context abstract state, so one built system runs in any number of Contexts.
     """
 
     def __init__(self, config: TrackerConfig | None = None, look: LookGateConfig | None = None):
@@ -84,7 +103,6 @@ class WholeBodyTracker(LeafSystem):
         self._config = config or TrackerConfig()
         self._look = look or LookGateConfig()
         self._look.validate()
-        self._core = WholeBodyTrackerCore(self._config)
         # None is a value of this port (no trajectory: hold still), hence its model.
         self._trajectory_port = self.DeclareAbstractInputPort("trajectory", AbstractValue.Make(None))
         self._q_port = self.DeclareVectorInputPort("robot_configuration", layout.NQ)
@@ -92,6 +110,8 @@ class WholeBodyTracker(LeafSystem):
         self._u_index = self.DeclareDiscreteState(BASE_VELOCITY_SIZE + JOINT_VELOCITY_SIZE)
         self._tracking_index = self.DeclareAbstractState(AbstractValue.Make(TrackerCommand()))
         self._gate_index = self.DeclareAbstractState(AbstractValue.Make(LookGate()))
+        self._memory_index = self.DeclareAbstractState(AbstractValue.Make(TrackerMemory(
+            WholeBodyTrackerCore(self._config))))
         self.DeclareStateOutputPort("tracking", self._tracking_index)
         self.DeclareVectorOutputPort("base_velocity", BASE_VELOCITY_SIZE, self._calc_base_velocity,
                                      {self.discrete_state_ticket(self._u_index)})
@@ -101,29 +121,22 @@ class WholeBodyTracker(LeafSystem):
                                      {self.abstract_state_ticket(self._tracking_index)})
         self.DeclareAbstractOutputPort("look_request", lambda: AbstractValue.Make(np.empty((0, 3))),
                                        self._calc_look_request, {self.abstract_state_ticket(self._gate_index)})
-        self.DeclareInitializationUnrestrictedUpdateEvent(self._initialize)
         self.DeclarePeriodicUnrestrictedUpdateEvent(self._config.period, 0.0, self._update)
-        self._loaded = None  # the trajectory object loaded into the core (identity)
 
-    @property
-    def core(self) -> WholeBodyTrackerCore:
-        return self._core
+    def core(self, context) -> WholeBodyTrackerCore:
+        """The tracker core of this system's `context` (for tests and diagnostics; do not mutate)."""
+        return context.get_abstract_state(self._memory_index).get_value().core
 
     @property
     def config(self) -> TrackerConfig:
         return self._config
 
-    def _initialize(self, context, state) -> EventStatus:
-        self._core.clear()
-        self._loaded = None
-        state.get_mutable_abstract_state(self._gate_index).set_value(LookGate())
-        return EventStatus.Succeeded()
-
-    def _load(self, trajectory, q: np.ndarray) -> None:
+    @staticmethod
+    def _load(memory: TrackerMemory, trajectory, q: np.ndarray) -> None:
         """Hands a new trajectory object to the core (None clears it)."""
-        self._loaded = trajectory
+        memory.loaded = trajectory
         if trajectory is None:
-            self._core.clear()
+            memory.core.clear()
             return
         try:
             times, q_path = trajectory.times, trajectory.q
@@ -131,9 +144,9 @@ class WholeBodyTracker(LeafSystem):
             times = q_path = None
         if times is None or q_path is None:
             reason = f"trajectory value of type {type(trajectory).__name__} has no .times/.q"
-            self._core.reject(reason)
+            memory.core.reject(reason)
         else:
-            reason = self._core.set_trajectory(times, q_path, q, getattr(trajectory, "stops", ()))
+            reason = memory.core.set_trajectory(times, q_path, q, getattr(trajectory, "stops", ()))
         if reason:
             _log.warning("WholeBodyTracker rejected a trajectory: %s", reason)
 
@@ -142,14 +155,15 @@ class WholeBodyTracker(LeafSystem):
         value = self._trajectory_port.Eval(context) if self._trajectory_port.HasValue(context) else None
         trajectory = _unwrap_trajectory(value)
         gate = context.get_abstract_state(self._gate_index).get_value()
-        if trajectory is not self._loaded:
-            self._load(trajectory, q)
+        memory: TrackerMemory = state.get_mutable_abstract_state(self._memory_index).get_mutable_value()
+        if trajectory is not memory.loaded:
+            self._load(memory, trajectory, q)
             gate = LookGate()
         previous = context.get_abstract_state(self._tracking_index).get_value()
-        command = self._core.command(q)
+        command = memory.core.command(q)
         if command.status == TrackerStatus.INVALID_STATE and previous.status != TrackerStatus.INVALID_STATE:
             _log.warning("WholeBodyTracker: %s; commanding zero", command.reason)
-        gate = self._gate(context, q, command, gate)
+        gate = self._gate(context, q, command, gate, memory.core)
         if gate.points.shape[0]:
             command = dc.replace(command, base_velocity=np.zeros(BASE_VELOCITY_SIZE),
                                  joint_velocity=np.zeros(JOINT_VELOCITY_SIZE), status=TrackerStatus.WAITING,
@@ -159,7 +173,8 @@ class WholeBodyTracker(LeafSystem):
         state.get_mutable_abstract_state(self._tracking_index).set_value(command)
         return EventStatus.Succeeded()
 
-    def _gate(self, context, q: np.ndarray, command: TrackerCommand, gate: LookGate) -> LookGate:
+    def _gate(self, context, q: np.ndarray, command: TrackerCommand, gate: LookGate,
+              core: WholeBodyTrackerCore) -> LookGate:
         """The gate after this tick: the unseen cells to wait for (none once `max_wait` is spent)."""
         look = self._look
         if (not look.enabled or command.status != TrackerStatus.TRACKING or gate.waited >= look.max_wait
@@ -168,7 +183,7 @@ class WholeBodyTracker(LeafSystem):
         grid = self._seen_port.Eval(context)
         if not isinstance(grid, SeenGrid):
             return LookGate(gate.waited)
-        points = unseen_footprint(grid, self._core.base_path_ahead(), q[:3], context.get_time(), look)
+        points = unseen_footprint(grid, core.base_path_ahead(), q[:3], context.get_time(), look)
         if not points.shape[0]:
             if gate.points.shape[0]:
                 _log.info("WholeBodyTracker t=%.2f: the path ahead is seen; driving (held %.2f s on this trajectory)",
