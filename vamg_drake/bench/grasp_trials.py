@@ -254,7 +254,8 @@ def run_trial(index: int, seed: int, config: GraspTrialConfig, oracle: OracleGra
     top = np.arange(min(config.top_k, k))
     rest = rng.choice(np.arange(len(top), len(candidates)), size=k - len(top), replace=False)
     chosen = np.concatenate([top, np.sort(rest)]).astype(int)
-    crops, counts = grasp_frame_crops(cloud, candidates.X_WG[chosen], config.crop, rng)
+    # Its own stream: the labels do not depend on how crops are drawn.
+    crops, counts = grasp_frame_crops(cloud, candidates.X_WG[chosen], config.crop, np.random.default_rng([seed, index, 1]))
     success, lift = np.zeros(k, bool), np.zeros(k)
     for j, c in enumerate(chosen):
         X_WG = perturbed(candidates.X_WG[c], config.execution_position_noise, config.execution_rotation_noise, rng)
