@@ -181,7 +181,7 @@ BODY_LINKS = (
 )
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def sphere_centres_into(T, link_index, center_L, C):
     """C[s] = X_W(link_index[s]) @ center_L[s]: the world centres (S, 3) of the
     spheres from the link poses T (L, 3 or 4, 4) of `link_transforms`."""
