@@ -13,7 +13,7 @@ from pydrake.systems.analysis import Simulator
 from behaviour_stepper import Stepper
 from scenes import box_room_scenario
 from vamg_drake.bench.methods import known_methods, load_method
-from vamg_drake.diagram import DiagramConfig, apply_strategy_defaults, build_diagram
+from vamg_drake.diagram import DiagramConfig, build_diagram, load_diagram_config
 from vamg_drake.testing import synthetic_clouds as clouds
 from vamg_drake.policy.behaviour_tree import (
     BehaviourConfig,
@@ -424,29 +424,33 @@ def test_strategy_registry_and_bad_input(pipeline) -> None:
 
     with pytest.raises(ValueError, match="make_subgoal_policy: unknown strategy"):
         make_subgoal_policy(strategy="teleport")
-    for bad in (dict(nav_standoff=[]), dict(nav_standoff=[0.8, -1.0]), dict(capmap_tries=0), dict(replan_period=0.0)):
+    for bad in (dict(nav_standoff=[]), dict(nav_standoff=[0.8, -1.0]), dict(capmap_tries=0), dict(avoid_radius=-0.1)):
         with pytest.raises(ValueError, match="StrategyConfig"):
             StrategyConfig(**bad)
 
 
-def test_apply_strategy_defaults() -> None:
+def test_method_files_state_their_system_settings() -> None:
+    expected = {"direct_grasping": ("target_only", 0.0), "closed_loop_replanning": ("velocity_aware", 1.0),
+                "velocity_agnostic": ("velocity_agnostic", 0.0)}
     for name in ("full", "velocity_agnostic", "direct_grasping", "closed_loop_replanning", "nav_and_manip",
                  "capmap_placement"):
         config = load_method(name).config
-        before = dc.asdict(config)
-        applied = apply_strategy_defaults(config)
-        assert dc.asdict(config) == before  # the input is not changed
-        expected_variant = {"direct_grasping": "target_only", "velocity_agnostic": "velocity_agnostic"}.get(
-            name, "velocity_aware")
-        assert applied.gaze.variant == expected_variant, name
-        assert applied.planner.replan_period == (1.0 if name == "closed_loop_replanning" else 0.0), name
-    # Values a method set explicitly are kept.
-    config = DiagramConfig(strategy="closed_loop_replanning")
-    config.planner.replan_period = 0.5
-    assert apply_strategy_defaults(config).planner.replan_period == 0.5
-    config = DiagramConfig(strategy="direct_grasping")
-    config.gaze.variant = "velocity_agnostic"
-    assert apply_strategy_defaults(config).gaze.variant == "velocity_agnostic"
+        variant, replan_period = expected.get(name, ("velocity_aware", 0.0))
+        assert (config.gaze.variant, config.planner.replan_period) == (variant, replan_period), name
+
+
+@pytest.mark.parametrize("strategy, yaml_setting", [
+    ("direct_grasping", "gaze: {variant: velocity_aware}"),
+    ("closed_loop_replanning", "planner: {replan_period: 0.0}"),
+])
+def test_explicit_settings_equal_to_the_defaults_are_built_unchanged(strategy: str, yaml_setting: str) -> None:
+    config = load_diagram_config("explicit.yaml", text=f"policy: full\nstrategy: {strategy}\n{yaml_setting}\n")
+    assert config.gaze.variant == "velocity_aware" and config.planner.replan_period == 0.0
+    before = dc.asdict(config)
+    ed = build_diagram(box_room_scenario(), config)
+    assert dc.asdict(config) == before and dc.asdict(ed.config) == before
+    assert ed.gaze.core.config.variant == "velocity_aware"
+    assert ed.planner.config.replan_period == 0.0
 
 
 @pytest.mark.parametrize("name", known_methods())
@@ -459,7 +463,8 @@ def test_every_method_builds_and_steps_one_second(name: str) -> None:
     if method.config.policy != "full":
         return
     assert type(ed.policy.behaviour) is BEHAVIOURS[method.config.strategy]
-    assert ed.config.gaze.variant == apply_strategy_defaults(method.config).gaze.variant
+    assert ed.gaze.core.config.variant == method.config.gaze.variant
+    assert ed.planner.config.replan_period == method.config.planner.replan_period
     policy_context = ed.policy.GetMyContextFromRoot(sim.get_context())
     goal = ed.policy.GetOutputPort("goal").Eval(policy_context)
     assert goal.goal_id > 0 and goal.phase != Phase.FAILED, ed.policy.behaviour_state(policy_context).history

@@ -22,7 +22,6 @@ by `ScriptedDriver` (a waypoint list and a head sweep), to exercise the world.
 """
 
 
-import copy
 import dataclasses as dc
 from pathlib import Path
 
@@ -46,7 +45,7 @@ from vamg_drake.perception.seen_space import LookGateConfig, SeenSpaceConfig
 from vamg_drake.planning.motion_supervisor import PlannerSystemConfig
 from vamg_drake.policy.behaviour_tree import BehaviourConfig
 from vamg_drake.policy.learned_grasps import GraspQualityModel
-from vamg_drake.policy.strategies import BEHAVIOURS, StrategyConfig
+from vamg_drake.policy.strategies import BEHAVIOURS
 from vamg_drake.policy.subgoal_pipeline import SubgoalPipelineConfig
 from vamg_drake.systems.depth_sampler import DepthSampler
 from vamg_drake.systems.dynamic_obstacles import DynamicObstacleDriver
@@ -83,7 +82,12 @@ class DiagramConfig:
         method: the method's name, recorded in results.
         strategy: how the full system organises its subgoals, a key of
             `vamg_drake.policy.strategies.BEHAVIOURS` (see `vamg_drake.bench`
-            for the methods).
+            for the methods). It selects the subgoals only: the system
+            settings a method needs (``gaze.variant``, ``planner.replan_period``)
+            are stated in its YAML file, and `build_diagram` uses the config as
+            given. A strategy with settings other than its method file's (e.g.
+            ``direct_grasping`` with the velocity-aware gaze) is an explicit
+            choice and is kept.
         seed: seed of the samplers and the planner.
         prior_map: "none" (the paper's setting: the map starts empty) or
             "static" (it starts with a point cloud of the room's static
@@ -177,40 +181,6 @@ def load_diagram_config(path: str | Path, source: str | None = None, text: str |
     return config
 
 
-def apply_strategy_defaults(config: DiagramConfig, strategy_config: StrategyConfig | None = None) -> DiagramConfig:
-    """A copy of ``config`` with the system settings its strategy implies.
-
-    Settings still at their defaults are changed; values a method's YAML set
-    explicitly are kept.
-
-    * ``direct_grasping``: no gaze optimization -> ``gaze.variant = "target_only"``.
-    * ``closed_loop_replanning``: continuous replanning -> ``planner.replan_period``
-      (``StrategyConfig.replan_period``, 1 s: the planner's budget, 3 attempts
-      of 1500 RRT-Connect iterations, ~0.1-0.2 s each on an idle machine,
-      so replanning at 1 Hz keeps it at most ~60 % of one core in the worst case
-      and ~10 % typically, while the 10 Hz map still triggers the
-      invalidation replans in between; at 1.5 m/s the base moves at most 1.5 m
-      between periodic replans, within the 2.5 m map crop. Faster replanning
-      also makes the tracker switch references more often, the oscillation the
-      paper reports for this design, which is not what a baseline should
-      exaggerate.)
-    * the other strategies: unchanged.
-    """
-    strategy_config = strategy_config or StrategyConfig()
-    config = copy.deepcopy(config)
-    if config.strategy == "direct_grasping" and config.gaze.variant == _default(config.gaze, "variant"):
-        config.gaze.variant = "target_only"
-    if (config.strategy == "closed_loop_replanning"
-            and config.planner.replan_period == _default(config.planner, "replan_period")):
-        config.planner.replan_period = strategy_config.replan_period
-    return config
-
-
-def _default(obj, name: str):
-    """The dataclass default of field ``name`` of ``obj``."""
-    return next(f.default for f in dc.fields(obj) if f.name == name)
-
-
 @dc.dataclass
 class EpisodeDiagram:
     """The built diagram and handles to its systems (None where the policy has none)."""
@@ -260,7 +230,6 @@ def build_diagram(scenario: Scenario, config: DiagramConfig | None = None, meshc
     """Builds the episode diagram for `scenario`."""
     config = config or DiagramConfig()
     config.validate()
-    config = apply_strategy_defaults(config)  # the method's system settings (gaze variant, replanning)
     builder = DiagramBuilder()
     timings = ModuleTimings()
     world = build_world(builder, scenario, config.world)

@@ -2,8 +2,8 @@
 
 Every method of the paper shares the world, the map, the whole-body planner,
 the tracker and the gaze optimizer; they differ in how the subgoals are chosen
-(``DiagramConfig.strategy``) and in a few system settings
-(`vamg_drake.diagram.apply_strategy_defaults`). Each strategy is a behaviour
+(``DiagramConfig.strategy``) and in a few system settings that each
+method's YAML file states (``vamg_drake/bench/methods/``). Each strategy is a behaviour
 with the interface of `SubgoalBehaviour` (``initial_state``, ``step(state,
 inputs, event) -> (state, command)``; its progress is in the
 `BehaviourState`) and reuses its grasp execution (GRASP_MOVE planned to
@@ -19,7 +19,7 @@ Strategies (paper "Baselines" and appendix "System-Level Comparisons"):
   resampling. The planner still replans the path to the same goal when the
   map invalidates it; a goal the map has put in collision, a motion failure or
   a failed sample ends the episode. No gaze optimization (the gaze looks at
-  the target only, set by `vamg_drake.diagram.apply_strategy_defaults`).
+  the target only: ``gaze.variant: target_only`` in its method file).
 * ``nav_and_manip`` -- navigation and manipulation decoupled: drive with the
   arm stowed to a base pose at a fixed distance from the target
   (``StrategyConfig.nav_standoff``), facing it, collision-free and seeing it in
@@ -36,8 +36,8 @@ Strategies (paper "Baselines" and appendix "System-Level Comparisons"):
   the sampled reachability holds for that height only.
 * ``closed_loop_replanning`` -- no stages: sample the whole-body pre-grasp
   configuration and replan continuously towards it (the planner's
-  ``replan_period``, set by `vamg_drake.diagram.apply_strategy_defaults`)
-  until it is reached, then grasp from there. A failed motion, a pre-grasp
+  ``replan_period``, 1 s in its method file, which says why) until it is
+  reached, then grasp from there. A failed motion, a pre-grasp
   the map has put in collision, or no grasp from the reached pre-grasp
   resamples the pre-grasp (at most ``max_pregrasp_goals`` samples;
   invalidations do not count).
@@ -97,7 +97,6 @@ class StrategyConfig:
             at least the stowed one (else the stowed torso).
         capmap_tries: pre-grasp samples tried for a base whose stowed
             configuration is collision-free.
-        replan_period: the closed-loop-replanning baseline's periodic replanning [s].
         grasp_patience: nav_and_manip and capmap_placement keep sampling grasps
             from the reached base for this long while the head looks at the
             target, before a failed sample ends the episode: on arrival the
@@ -116,7 +115,6 @@ class StrategyConfig:
     avoid_radius: float = 0.15
     capmap_keep_torso: bool = True
     capmap_tries: int = 3
-    replan_period: float = 1.0
     grasp_patience: float = 2.0
     max_same_goal_replans: int = 1
 
@@ -130,9 +128,8 @@ class StrategyConfig:
             raise ValueError(f"StrategyConfig.max_same_goal_replans must be >= 0, got {self.max_same_goal_replans}")
         if self.grasp_patience < 0:
             raise ValueError(f"StrategyConfig.grasp_patience must be >= 0, got {self.grasp_patience}")
-        if self.avoid_radius < 0 or self.replan_period <= 0:
-            raise ValueError("StrategyConfig: avoid_radius must be >= 0 and replan_period > 0, got "
-                             f"{self.avoid_radius}, {self.replan_period}")
+        if self.avoid_radius < 0:
+            raise ValueError(f"StrategyConfig.avoid_radius must be >= 0, got {self.avoid_radius}")
 
 
 @dc.dataclass

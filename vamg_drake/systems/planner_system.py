@@ -125,6 +125,10 @@ class PlannerSystem(LeafSystem):
     def planner(self) -> WholeBodyPlanner:
         return self._planner
 
+    @property
+    def config(self) -> PlannerSystemConfig:
+        return self._config
+
     def _motion(self, context) -> MotionState:
         return context.get_abstract_state(self._motion_index).get_value()
 
