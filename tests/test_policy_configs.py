@@ -5,8 +5,10 @@ from __future__ import annotations
 import pytest
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 
-from vamg_drake.policy.behaviour_tree import BehaviourConfig, SubgoalBehaviour, SubgoalSamplers
-from vamg_drake.policy.grasp_candidates import AntipodalGraspConfig, AntipodalGraspSampler
+from vamg_drake.config_validation import InputError
+from vamg_drake.diagram import DiagramConfig, load_diagram_config
+from vamg_drake.policy.behaviour_tree import BehaviourConfig
+from vamg_drake.policy.grasp_candidates import AntipodalGraspConfig
 from vamg_drake.policy.ik import IkConfig
 from vamg_drake.policy.kinematic_maps import KinematicMapsConfig
 from vamg_drake.policy.subgoal_pipeline import SubgoalPipelineConfig
@@ -29,16 +31,36 @@ def test_partial_yaml_overrides() -> None:
 
 
 def test_bad_values_name_the_field() -> None:
-    # yaml_load_typed skips __post_init__: the consumers validate.
+    # yaml_load_typed skips __post_init__: validate() checks a loaded config.
     c = yaml_load_typed(schema=AntipodalGraspConfig, data="friction_coefficient: 0.0")
     with pytest.raises(ValueError, match="friction_coefficient"):
-        AntipodalGraspSampler(c)
+        c.validate()
     b = yaml_load_typed(schema=BehaviourConfig, data="max_total_failures: -2")
     with pytest.raises(ValueError, match="max_total_failures"):
-        SubgoalBehaviour(SubgoalSamplers(None, None, None), b)
+        b.validate()
     p = yaml_load_typed(schema=SubgoalPipelineConfig, data="pregrasp: {base_radius: [1.0, 0.5]}")
     with pytest.raises(ValueError, match="base_radius"):
-        p.pregrasp.__post_init__()
+        p.validate()
+    p = yaml_load_typed(schema=SubgoalPipelineConfig, data="observe: {costmap: {decay_distance: 0.0}}")
+    with pytest.raises(ValueError, match="decay_distance"):
+        p.validate()
+    with pytest.raises(ValueError, match="num_seeds"):
+        AntipodalGraspConfig(num_seeds=0)  # direct construction validates
+
+
+@pytest.mark.parametrize("subgoal, field", [
+    ("grasps: {friction_coefficient: 0.0}", "friction_coefficient"),
+    ("pregrasp: {base_radius: [1.0, 0.5]}", "base_radius"),
+    ("observe: {standoff: []}", "standoff"),
+    ("pregrasp: {ik_seed_arm: [0.0, 1.0]}", "ik_seed_arm"),
+])
+def test_the_diagram_config_validates_the_nested_policy_configs(subgoal: str, field: str) -> None:
+    with pytest.raises(InputError, match=field):
+        load_diagram_config("bad.yaml", text=f"subgoal: {{{subgoal}}}")
+    config = DiagramConfig()
+    config.subgoal = yaml_load_typed(schema=SubgoalPipelineConfig, data=subgoal)
+    with pytest.raises(ValueError, match=field):
+        config.validate()
 
 
 def test_the_pregrasp_leaves_the_torso_room_for_the_whole_lift() -> None:

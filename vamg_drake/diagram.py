@@ -137,7 +137,9 @@ class DiagramConfig:
 
     def validate(self) -> None:
         """Raises ValueError naming the bad field (every type, finiteness and
-        range problem of the whole tree, see `vamg_drake.config_validation`)."""
+        range problem of the whole tree, see `vamg_drake.config_validation`,
+        and each nested config's own `validate`: the components built from
+        them do not check them again)."""
         check_diagram_config(self)
         if self.policy not in POLICIES:
             raise ValueError(f"DiagramConfig.policy: unknown policy '{self.policy}' (known: {', '.join(POLICIES)})")
@@ -149,6 +151,8 @@ class DiagramConfig:
         if self.policy == "full" and not self.world.enable_camera:
             raise ValueError("DiagramConfig.world.enable_camera: the full system needs the head camera")
         self.gaze.validate()
+        self.subgoal.validate()
+        self.behaviour.validate()
         grasp_source = self.subgoal.grasp_source
         grasp_source.validate("DiagramConfig.subgoal.grasp_source")
         if grasp_source.source == "learned" and not grasp_source.fallback_to_geometric:

@@ -148,6 +148,10 @@ class BehaviourConfig:
     lift_height: float = 0.15
 
     def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raises ValueError naming the bad field."""
         for f in dc.fields(self):
             if getattr(self, f.name) < 0:
                 raise ValueError(f"BehaviourConfig.{f.name} must be >= 0, got {getattr(self, f.name)}")
@@ -313,7 +317,6 @@ class SubgoalBehaviour:
 
     def __init__(self, samplers: SubgoalSamplers, config: BehaviourConfig | None = None) -> None:
         self.config = config or BehaviourConfig()
-        self.config.__post_init__()  # YAML-loaded configs skip __post_init__
         self._memory = tuple(samplers.memory)
         self._initial_samplers = tuple(m.save_state() for m in self._memory)
         self._s: BehaviourState | None = None  # the state of the step in progress

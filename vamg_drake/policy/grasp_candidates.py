@@ -184,6 +184,10 @@ class AntipodalGraspConfig:
     cluster_link: float = 2.0
 
     def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raises ValueError naming the bad field."""
         if not 0.0 < self.friction_coefficient:
             raise ValueError(f"AntipodalGraspConfig.friction_coefficient must be > 0, got {self.friction_coefficient}")
         if not 0.0 < self.grasp_radius <= self.crop_radius:
@@ -247,7 +251,6 @@ class AntipodalGraspSampler:
 
     def __init__(self, config: AntipodalGraspConfig | None = None) -> None:
         self.config = config or AntipodalGraspConfig()
-        self.config.__post_init__()  # YAML-loaded configs skip __post_init__
         self._line_tolerance = self.config.line_tolerance
         self._margin = self.config.margin
         self._spacing = 0.0

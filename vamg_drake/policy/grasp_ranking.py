@@ -48,6 +48,10 @@ class GraspRankingConfig:
     ik_when_unreachable: bool = True
 
     def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raises ValueError naming the bad field."""
         if self.n_diverse < 1:
             raise ValueError(f"GraspRankingConfig.n_diverse must be >= 1, got {self.n_diverse}")
 

@@ -46,6 +46,10 @@ class IkConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raises ValueError naming the bad field."""
         if self.position_tolerance <= 0 or self.angle_tolerance <= 0:
             raise ValueError("IkConfig: tolerances must be positive")
         if self.max_iterations < 1 or self.restarts < 0:
@@ -130,7 +134,6 @@ class FastIk:
 
     def __init__(self, config: IkConfig | None = None, chain: ArmChain | None = None) -> None:
         self.config = config or IkConfig()
-        self.config.__post_init__()  # YAML-loaded configs skip __post_init__
         self.chain = chain or ArmChain.load()
         #: The restarts' generator; callers that keep their state in a Context save and restore its state.
         self.rng = np.random.default_rng(self.config.seed)

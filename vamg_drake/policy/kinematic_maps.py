@@ -81,6 +81,10 @@ class KinematicMapsConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raises ValueError naming the bad field."""
         max_key = int(np.prod(self.grid_shape(self.position_resolution))) * N_ORIENTATION
         if max_key >= 2**32:
             raise ValueError("KinematicMapsConfig: box_size / position_resolution give more than 2**32 voxels")
@@ -339,7 +343,7 @@ class KinematicMaps:
     def build(config: KinematicMapsConfig | None = None, progress: bool = True) -> "KinematicMaps":
         """Samples the chain and builds all three maps (minutes for the defaults)."""
         config = config or KinematicMapsConfig()
-        config.__post_init__()  # YAML-loaded configs skip __post_init__
+        config.validate()
         chain = ArmChain.load()
         rng = np.random.default_rng(config.seed)
         lower = np.asarray(config.box_lower, dtype=float)

@@ -40,7 +40,7 @@ def _config(args: argparse.Namespace) -> KinematicMapsConfig:
         config.reach_samples = args.reach_samples
     if args.torso_samples is not None:
         config.torso_samples = args.torso_samples
-    config.__post_init__()
+    config.validate()
     return config
 
 

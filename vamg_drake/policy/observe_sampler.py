@@ -35,6 +35,11 @@ class ObserveConfig:
     yaw_weight: float = 0.2
 
     def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raises ValueError naming the bad field (the costmap's too)."""
+        self.costmap.validate()
         if self.num_angles < 1 or not self.standoff or min(self.standoff) <= 0:
             raise ValueError("ObserveConfig: num_angles >= 1 and positive standoff distances required")
 
@@ -57,8 +62,6 @@ class ObserveSampler:
     def __init__(self, visibility: TargetVisibility | None = None, config: ObserveConfig | None = None) -> None:
         self.visibility = visibility or TargetVisibility()
         self.config = config or ObserveConfig()
-        self.config.__post_init__()  # YAML-loaded configs skip __post_init__
-        self.config.costmap.__post_init__()
 
     def sample(
         self,

@@ -54,6 +54,10 @@ class CostmapConfig:
     base_clearance: float = 0.35
 
     def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raises ValueError naming the bad field."""
         if not 0.0 <= self.z_min < self.z_max:
             raise ValueError(f"CostmapConfig: need 0 <= z_min < z_max, got {self.z_min}, {self.z_max}")
         if self.resolution <= 0 or self.decay_distance <= 0:
@@ -214,6 +218,11 @@ class PregraspConfig:
     lift_headroom: float = 0.15
 
     def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raises ValueError naming the bad field (the costmap's too)."""
+        self.costmap.validate()
         if self.num_bases < 1 or self.samples_per_base < 1:
             raise ValueError("PregraspConfig: num_bases and samples_per_base must be >= 1")
         if len(self.ik_seed_arm) not in (0, 7):
@@ -282,8 +291,6 @@ class PregraspSampler:
         self.ik = ik or FastIk()
         self.visibility = visibility or TargetVisibility()
         self.config = config or PregraspConfig()
-        self.config.__post_init__()  # YAML-loaded configs skip __post_init__
-        self.config.costmap.__post_init__()
 
     def sample(
         self,

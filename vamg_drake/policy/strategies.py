@@ -119,6 +119,10 @@ class StrategyConfig:
     max_same_goal_replans: int = 1
 
     def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raises ValueError naming the bad field."""
         if not self.nav_standoff or min(self.nav_standoff) <= 0:
             raise ValueError(f"StrategyConfig.nav_standoff must be positive distances, got {self.nav_standoff}")
         for name in ("nav_num_angles", "capmap_tries"):
@@ -524,7 +528,6 @@ def goal_check(pipeline: SubgoalPipeline) -> GoalCheckFn:
 def strategy_samplers(strategy: str, pipeline: SubgoalPipeline, config: StrategyConfig | None = None) -> StrategySamplers:
     """The goal generators of ``strategy`` over the real samplers of ``pipeline``."""
     config = config or StrategyConfig()
-    config.__post_init__()  # YAML-loaded configs skip __post_init__
     base = pipeline.samplers()
     navigate, reject, memory = base.pregrasp, None, base.memory
     if strategy == "nav_and_manip":

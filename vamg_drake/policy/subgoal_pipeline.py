@@ -113,6 +113,14 @@ class SubgoalPipelineConfig:
     #: The target is "inside furniture" when at least this fraction of the 26 rays is blocked.
     enclosure_fraction: float = 0.95
 
+    def validate(self) -> None:
+        """Raises ValueError naming the bad field of a nested sampler config
+        (``grasp_source`` is checked by `GraspSourceConfig.validate`, which names its own path)."""
+        self.ranking.validate()
+        self.pregrasp.validate()
+        self.observe.validate()
+        self.grasps.validate()
+
 
 @dc.dataclass(frozen=True)
 class PipelineMemory:
