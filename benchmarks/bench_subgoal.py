@@ -39,6 +39,7 @@ from vamg_drake.policy.kinematic_maps import KinematicMaps
 from vamg_drake.policy.pregrasp_sampler import BaseCostmap, PregraspSampler
 from vamg_drake.policy.subgoal_pipeline import SubgoalPipeline
 from vamg_drake.robot import layout
+from vamg_drake.robot.head_camera import HeadCameraConfig
 from vamg_drake.robot.kinematics import FetchKinematics
 
 BUDGETS = (32, 64, 128, 256, 512, 1024, 2048, 2560, 4096)
@@ -90,7 +91,7 @@ def main() -> None:
     t0 = time.perf_counter()
     maps = KinematicMaps.load_or_build()
     maps_load_s = time.perf_counter() - t0
-    pipeline = SubgoalPipeline(maps)
+    pipeline = SubgoalPipeline(maps, HeadCameraConfig())
     sampler: PregraspSampler = pipeline.pregrasp
     grasp_source = AntipodalGraspSampler()
     rng = np.random.default_rng(2024)

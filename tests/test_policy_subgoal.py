@@ -20,7 +20,7 @@ from vamg_drake.robot.kinematics import FetchKinematics
 
 @pytest.fixture(scope="module")
 def pipeline() -> SubgoalPipeline:
-    return SubgoalPipeline(KinematicMaps.load_or_build(), seed=0)
+    return SubgoalPipeline(KinematicMaps.load_or_build(), HeadCameraConfig(), seed=0)
 
 
 @pytest.fixture(scope="module")
@@ -264,7 +264,7 @@ def test_pregrasp_proposal_is_the_pregrasp_of_its_accepted_grasp(scene) -> None:
     for aimed in (True, False):
         moves = []
         for seed in range(4):
-            p = SubgoalPipeline(KinematicMaps.load_or_build(), seed=seed)
+            p = SubgoalPipeline(KinematicMaps.load_or_build(), HeadCameraConfig(), seed=seed)
             p.config.pregrasp_at_aimed_grasp = aimed
             pre = p.sample_pregrasp(PolicyInputs(0.0, q0, points, target, dense))
             assert pre.success, pre.failure_reason

@@ -19,6 +19,7 @@ from vamg_drake.policy.behaviour_tree import (
     FailureCategory,
 )
 from vamg_drake.robot import layout
+from vamg_drake.robot.head_camera import HeadCameraConfig
 from vamg_drake.systems.subgoal_policy_system import MotionFeedback, SubgoalPolicy
 
 Q0 = layout.stow_configuration(0.0, 0.0, 0.0)
@@ -104,7 +105,7 @@ def test_real_subgoal_policy_in_a_diagram() -> None:
     points, target = synthetic_clouds.tabletop_scene()
     q0 = layout.stow_configuration(-1.5, 0.5, 0.0)
     builder = DiagramBuilder()
-    policy = builder.AddSystem(make_subgoal_policy())
+    policy = builder.AddSystem(make_subgoal_policy(HeadCameraConfig()))
     snapshot = PointMapSnapshot(points, np.floor(points / 0.03).astype(np.int64), 0.03, 1)
     m = builder.AddSystem(ConstantValueSource(AbstractValue.Make(snapshot)))
     q = builder.AddSystem(ConstantVectorSource(q0))

@@ -174,6 +174,11 @@ class PlannerConfig:
     travel_torso_arm: list[float] = dataclasses.field(
         default_factory=lambda: [0.167, 0.43, 1.214, -0.738, 1.461, -0.093, 1.597, -1.9])
 
+    def checker_config(self) -> CollisionCheckerConfig:
+        """The sphere collision checker's parameters (its padding) of this
+        planner; the subgoal samplers check their goals with the same."""
+        return CollisionCheckerConfig(motion_resolution=self.motion_resolution, extra_padding=self.extra_padding)
+
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class PlanResult:
@@ -391,9 +396,7 @@ class WholeBodyPlanner:
     def for_fetch(env: CollisionEnvironment, config: PlannerConfig | None = None) -> "WholeBodyPlanner":
         config = config or PlannerConfig()
 
-        cc = SphereCollisionChecker.for_fetch(
-            env, CollisionCheckerConfig(motion_resolution=config.motion_resolution,
-                                        extra_padding=config.extra_padding))
+        cc = SphereCollisionChecker.for_fetch(env, config.checker_config())
         return WholeBodyPlanner(cc, config)
 
     @staticmethod

@@ -59,8 +59,8 @@ class ObserveResult:
 class ObserveSampler:
     """Samples a safe observation configuration for a target."""
 
-    def __init__(self, visibility: TargetVisibility | None = None, config: ObserveConfig | None = None) -> None:
-        self.visibility = visibility or TargetVisibility()
+    def __init__(self, visibility: TargetVisibility, config: ObserveConfig | None = None) -> None:
+        self.visibility = visibility
         self.config = config or ObserveConfig()
 
     def sample(

@@ -283,13 +283,13 @@ class PregraspSampler:
     def __init__(
         self,
         maps: KinematicMaps,
-        ik: FastIk | None = None,
-        visibility: TargetVisibility | None = None,
+        ik: FastIk,
+        visibility: TargetVisibility,
         config: PregraspConfig | None = None,
     ) -> None:
         self.maps = maps
-        self.ik = ik or FastIk()
-        self.visibility = visibility or TargetVisibility()
+        self.ik = ik
+        self.visibility = visibility
         self.config = config or PregraspConfig()
 
     def sample(

@@ -33,6 +33,7 @@ from scipy.spatial import cKDTree
 from vamg_drake.perception.point_clusters import MirrorCompletionConfig, mirrored_object_points
 from vamg_drake.planning.collision_environment import CollisionEnvironment
 from vamg_drake.planning.sphere_collision import CollisionCheckerConfig, SphereCollisionChecker
+from vamg_drake.planning.whole_body_planner import PlannerConfig
 from vamg_drake.policy.arm_chain import base_poses
 from vamg_drake.policy.behaviour_tree import FailureCategory, PolicyInputs, SubgoalProposal, SubgoalSamplers
 from vamg_drake.policy.grasp_candidates import AntipodalGraspConfig, GraspCandidates, GraspCandidateSource
@@ -43,6 +44,7 @@ from vamg_drake.policy.learned_grasps import GraspSourceConfig, make_grasp_sourc
 from vamg_drake.policy.observe_sampler import ObserveConfig, ObserveSampler
 from vamg_drake.policy.pregrasp_sampler import BaseCostmap, PregraspConfig, PregraspSampler
 from vamg_drake.policy.visibility import TargetVisibility
+from vamg_drake.robot.head_camera import HeadCameraConfig
 from vamg_drake.robot.kinematics import FetchKinematics
 from vamg_drake.robot.spheres import SphereModel
 
@@ -137,23 +139,40 @@ class PipelineMemory:
 
 
 class SubgoalPipeline:
-    """Grasp / pre-grasp / observe samplers over the real components."""
+    """Grasp / pre-grasp / observe samplers over the real components.
+
+    Args:
+        maps: the kinematic maps.
+        camera: the head camera (``WorldConfig.camera``) whose view the
+            visibility checks model.
+        grasp_source: the grasp candidates (default: ``config.grasp_source``).
+        config: the samplers' parameters.
+        seed: seed of the samplers' random generator.
+        timings: optional `vamg_drake.systems.timing.ModuleTimings`.
+        collision: the goals' collision check parameters (the sphere padding):
+            the planner's (`PlannerConfig.checker_config`), so that a goal the
+            samplers call free is free for the planner too; default: those of
+            the default `PlannerConfig`.
+    """
 
     def __init__(
         self,
         maps: KinematicMaps,
+        camera: HeadCameraConfig,
         grasp_source: GraspCandidateSource | None = None,
         config: SubgoalPipelineConfig | None = None,
         seed: int = 0,
         timings=None,
+        collision: CollisionCheckerConfig | None = None,
     ) -> None:
         self.config = config or SubgoalPipelineConfig()
+        self.collision = collision or PlannerConfig().checker_config()
         #: Optional `vamg_drake.systems.timing.ModuleTimings` (grasp candidates, samplers).
         self.timings = timings
         self.maps = maps
         self.grasp_source = grasp_source or make_grasp_source(self.config.grasp_source, self.config.grasps)
         self.ik = FastIk()
-        self.visibility = TargetVisibility()
+        self.visibility = TargetVisibility(camera)
         self.pregrasp = PregraspSampler(maps, self.ik, self.visibility, self.config.pregrasp)
         self.observe = ObserveSampler(self.visibility, self.config.observe)
         self.spheres = SphereModel.load()
@@ -234,7 +253,7 @@ class SubgoalPipeline:
             local = np.array([[1e3, 1e3, 1e3]])  # nothing observed: one far point
         env = CollisionEnvironment.from_points(local, cfg.collision_resolution, grasp_target=p_WT,
                                                grasp_target_radius=cfg.target_clearance)
-        checker = SphereCollisionChecker.for_fetch(env, CollisionCheckerConfig())
+        checker = SphereCollisionChecker.for_fetch(env, self.collision)
         grasp_free = checker.with_environment(dc.replace(env, grasp_target_floor=-np.inf)).is_free
         self._cache_key, self._cache = key, (checker.is_free, grasp_free)
         return self._cache[int(grasp)]

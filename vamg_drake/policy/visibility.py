@@ -49,11 +49,17 @@ class VisibilityConfig:
 
 
 class TargetVisibility:
-    """Batched target visibility from the head camera."""
+    """Batched target visibility from the head camera.
 
-    def __init__(self, config: VisibilityConfig | None = None, camera: HeadCameraConfig | None = None) -> None:
+    Args:
+        camera: the simulated head camera (``WorldConfig.camera``): its field
+            of view is the one the depth renderer has.
+        config: the check's margins.
+    """
+
+    def __init__(self, camera: HeadCameraConfig, config: VisibilityConfig | None = None) -> None:
         self.config = config or VisibilityConfig()
-        self.camera = camera or HeadCameraConfig()
+        self.camera = camera
         self.kin = FetchKinematics.instance()
         self.spheres = SphereModel.load()
         self.intrinsics = CameraIntrinsics.from_config(self.camera)

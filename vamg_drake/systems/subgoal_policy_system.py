@@ -9,11 +9,13 @@ from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
 from vamg_drake.perception.raycast_map import PointMapSnapshot
 from vamg_drake.planning.motion_messages import MotionEvent, MotionFeedback, SubgoalCommand, stage_name
+from vamg_drake.planning.sphere_collision import CollisionCheckerConfig
 from vamg_drake.policy.behaviour_tree import BehaviourConfig, BehaviourState, PolicyInputs, SubgoalBehaviour
 from vamg_drake.policy.kinematic_maps import KinematicMaps
 from vamg_drake.policy.strategies import BEHAVIOURS, StrategyConfig, make_strategy
 from vamg_drake.policy.subgoal_pipeline import SubgoalPipeline, SubgoalPipelineConfig
 from vamg_drake.robot import layout
+from vamg_drake.robot.head_camera import HeadCameraConfig
 
 _log = logging.getLogger(__name__)
 
@@ -143,6 +145,7 @@ class SubgoalPolicy(LeafSystem):
 
 
 def make_subgoal_policy(
+    camera: HeadCameraConfig,
     pipeline_config: SubgoalPipelineConfig | None = None,
     behaviour_config: BehaviourConfig | None = None,
     config: SubgoalPolicyConfig | None = None,
@@ -151,10 +154,12 @@ def make_subgoal_policy(
     timings=None,
     strategy: str = "subgoal_tree",
     strategy_config: StrategyConfig | None = None,
+    collision: CollisionCheckerConfig | None = None,
 ) -> SubgoalPolicy:
     """The SubgoalPolicy over the real samplers (kinematic maps built on first use).
 
-    ``strategy`` picks the behaviour (`vamg_drake.policy.strategies.BEHAVIOURS`:
+    ``camera`` is the world's head camera and ``collision`` the planner's
+    collision check parameters (see `SubgoalPipeline`). ``strategy`` picks the behaviour (`vamg_drake.policy.strategies.BEHAVIOURS`:
     the full system's subgoal tree or a baseline). ``timings`` (a
     `ModuleTimings`) collects the samplers' and the grasp candidates' costs.
 
@@ -163,6 +168,6 @@ def make_subgoal_policy(
     """
     if strategy not in BEHAVIOURS:
         raise ValueError(f"make_subgoal_policy: unknown strategy '{strategy}' (known: {', '.join(BEHAVIOURS)})")
-    pipeline = SubgoalPipeline(maps or KinematicMaps.load_or_build(), config=pipeline_config, seed=seed,
-                               timings=timings)
+    pipeline = SubgoalPipeline(maps or KinematicMaps.load_or_build(), camera, config=pipeline_config, seed=seed,
+                               timings=timings, collision=collision)
     return SubgoalPolicy(make_strategy(strategy, pipeline, behaviour_config, strategy_config), config)
