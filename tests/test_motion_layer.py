@@ -49,7 +49,7 @@ def test_linear_goal_is_a_straight_joint_space_motion_within_its_speed():
     system.GetInputPort("goal").FixValue(context, AbstractValue.Make(_goal(3, q1, "linear", Phase.GRASP_LIFT)))
     simulator = Simulator(system, context)
     simulator.AdvanceTo(0.05)
-    traj = system.GetOutputPort("timed_trajectory").Eval(context)
+    traj = system.GetOutputPort("trajectory").Eval(context).trajectory
     assert traj is not None
     np.testing.assert_allclose(traj.q[0], q0)
     np.testing.assert_allclose(traj.q[-1], q1)
@@ -76,7 +76,7 @@ def test_a_robot_behind_schedule_gets_slack_in_proportion_to_the_motion():
     system.GetInputPort("goal").FixValue(context, AbstractValue.Make(_goal(4, q1, "linear", Phase.GRASP_LIFT)))
     simulator = Simulator(system, context)
     simulator.AdvanceTo(0.05)
-    traj = system.GetOutputPort("timed_trajectory").Eval(context)
+    traj = system.GetOutputPort("trajectory").Eval(context).trajectory
     slack = config.settle_time + config.settle_time_fraction * traj.duration
     simulator.AdvanceTo(traj.end_time + config.settle_time + 0.5)
     assert system.GetOutputPort("motion_feedback").Eval(context).event == MotionEvent.NONE
@@ -131,7 +131,7 @@ def test_hold_goal_stops_the_robot():
     system.GetInputPort("robot_configuration").FixValue(context, q0)
     system.GetInputPort("goal").FixValue(context, AbstractValue.Make(_goal(1, q0, "hold", Phase.GRASP_CLOSE)))
     Simulator(system, context).AdvanceTo(0.25)
-    assert system.GetOutputPort("timed_trajectory").Eval(context) is None
+    assert system.GetOutputPort("trajectory").Eval(context).trajectory is None
     assert system.GetOutputPort("motion_feedback").Eval(context).event == MotionEvent.NONE
 
 
@@ -151,7 +151,7 @@ def test_planner_exception_becomes_a_planning_failure_with_traceback(caplog):
     plan = system.GetOutputPort("trajectory").Eval(context)
     assert not plan.success and plan.reason == EXCEPTION_REASON
     assert "numba kernel exploded" in plan.error
-    assert system.GetOutputPort("timed_trajectory").Eval(context) is None
+    assert system.GetOutputPort("trajectory").Eval(context).trajectory is None
     assert system.GetOutputPort("motion_feedback").Eval(context).event == MotionEvent.FAILED
     assert "Traceback" in caplog.text and "broken_plan" in caplog.text
 
@@ -174,7 +174,7 @@ def test_replanning_stops_after_max_replans():
     events = []
     # Each new map puts a short wall across the current path's middle: each plan is invalidated.
     for revision in range(1, 5):
-        traj = system.GetOutputPort("timed_trajectory").Eval(context)
+        traj = system.GetOutputPort("trajectory").Eval(context).trajectory
         if traj is None:
             break
         x, y = traj.sample(0.5 * (traj.start_time + traj.end_time))[:2]

@@ -7,12 +7,12 @@ The full system (``policy: full``, the default)::
       depth, X_WC, q ─► RayCastMap (10 Hz) ─► point_map
       depth, X_WC, target ─► TargetCloud ─► target_cloud
       point_map, q, target, motion_feedback, target_cloud ─► SubgoalPolicy ─► goal, phase, gripper_command
-      goal, planner's point_map, q, target ─► WholeBodyPlanner ─► timed_trajectory, motion_feedback
+      goal, planner's point_map, q, target ─► WholeBodyPlanner ─► trajectory, motion_feedback
       depth, X_WC, q ─► SeenSpace (10 Hz) ─► seen_space
       point_map, seen_space ─► HiddenCellMap ─► the planner's point_map
-      timed_trajectory, q, seen_space ─► WholeBodyTracker (20 Hz) ─► base_velocity, joint_velocity,
+      trajectory, q, seen_space ─► WholeBodyTracker (20 Hz) ─► base_velocity, joint_velocity,
                                                                trajectory_time, look_request
-      timed_trajectory, trajectory_time, look_request, q, target ─► GazeOptimizer (10 Hz) ─► head_command
+      trajectory, trajectory_time, look_request, q, target ─► GazeOptimizer (10 Hz) ─► head_command
       velocities, head, gripper ─► RobotCommandIntegrator ─► plant desired state
       phase, q ─► DynamicObstacleDriver ─► obstacle desired states
       EpisodeMonitor (collision / success / policy and planner verdicts / time limit) ─► outcome
@@ -344,7 +344,7 @@ def _add_full_system(builder: DiagramBuilder, ed: EpisodeDiagram, scenario: Scen
     builder.Connect(q, planner.GetInputPort("robot_configuration"))
     builder.Connect(target.get_output_port(), planner.GetInputPort("target"))
 
-    trajectory = planner.GetOutputPort("timed_trajectory")
+    trajectory = planner.GetOutputPort("trajectory")  # PlannedTrajectory: the monitor reads its status
     builder.Connect(trajectory, tracker.GetInputPort("trajectory"))
     builder.Connect(q, tracker.GetInputPort("robot_configuration"))
     builder.Connect(seen.GetOutputPort("seen_space"), tracker.GetInputPort("seen_space"))
@@ -362,7 +362,7 @@ def _add_full_system(builder: DiagramBuilder, ed: EpisodeDiagram, scenario: Scen
     builder.Connect(policy.GetOutputPort("phase"), ed.obstacles.GetInputPort("phase"))
     builder.Connect(policy.GetOutputPort("gripper_command"), ed.monitor.GetInputPort("gripper_command"))
     builder.Connect(policy.GetOutputPort("goal"), ed.monitor.GetInputPort("policy_goal"))
-    builder.Connect(planner.GetOutputPort("trajectory"), ed.monitor.GetInputPort("planner_status"))
+    builder.Connect(trajectory, ed.monitor.GetInputPort("planner_status"))
     ed.policy, ed.point_map, ed.planner, ed.tracker, ed.gaze = policy, point_map, planner, tracker, gaze
     ed.seen_space = seen
 

@@ -2,8 +2,8 @@
 
 The policy sends a `SubgoalCommand` (a goal, its motion kind and the policy's
 `Phase`); the motion layer answers with a `PlannedTrajectory` (what it
-executes, and why a plan failed) and a `MotionFeedback` (a `MotionEvent`
-about the goal). Both sides, and the systems that watch them (the episode
+executes, and why a plan failed; the tracker and the gaze follow its
+trajectory) and a `MotionFeedback` (a `MotionEvent` about the goal). Both sides, and the systems that watch them (the episode
 monitor, the tracker, the gaze), import the types from here, below both.
 """
 
@@ -141,3 +141,12 @@ class PlannedTrajectory:
     error: str = ""
     retreat: bool = False
     approach_index: int = -1
+
+
+def followed_trajectory(value: "PlannedTrajectory | TimedTrajectory | None") -> TimedTrajectory | None:
+    """The trajectory to follow in the value of a ``trajectory`` input port (the
+    tracker's, the gaze's): a `PlannedTrajectory`'s (None: hold still), or a
+    bare `TimedTrajectory` given directly (tests, hand-built diagrams)."""
+    if isinstance(value, PlannedTrajectory):
+        return value.trajectory
+    return value

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses as dc
 import logging
 import time
 
@@ -11,11 +12,19 @@ from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem, Valu
 
 from vamg_drake.perception.gaze import FetchGazeCameras, GazeConfig, GazeOptimizer as GazeOptimizerCore, decide_fetch_gaze
 from vamg_drake.perception.trajectory_sweep import TrajectorySweep
+from vamg_drake.planning.motion_messages import PlannedTrajectory, followed_trajectory
 from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics
 from vamg_drake.systems.timing import ModuleTimings
 
 _log = logging.getLogger(__name__)
+
+
+@dc.dataclass(frozen=True)
+class _Sweep:
+    """The GazeOptimizer's cached sweep of the followed trajectory (None: no trajectory to follow)."""
+
+    sweep: TrajectorySweep | None = None
 
 
 class GazeOptimizer(LeafSystem):
@@ -25,7 +34,8 @@ class GazeOptimizer(LeafSystem):
 
         name: GazeOptimizer
         input_ports:
-        - trajectory (TimedTrajectory or None; None while planning)
+        - trajectory (PlannedTrajectory, without a trajectory while planning;
+          a bare TimedTrajectory is accepted too)
         - trajectory_time (1-vector, optional: progress on the trajectory's clock)
         - target (3-vector p_WT, optional; NaN = no target)
         - robot_configuration (11-vector q)
@@ -55,8 +65,7 @@ class GazeOptimizer(LeafSystem):
         self._sweep_tilt = sweep_tilt
         self._core = GazeOptimizerCore(intrinsics, config)
         self._cameras = FetchGazeCameras(self._core.candidates)
-        # None is a value of this port (no trajectory while planning), hence its model.
-        self._trajectory_port = self.DeclareAbstractInputPort("trajectory", AbstractValue.Make(None))
+        self._trajectory_port = self.DeclareAbstractInputPort("trajectory", AbstractValue.Make(PlannedTrajectory()))
         self._time_port = self.DeclareVectorInputPort("trajectory_time", 1)
         self._target_port = self.DeclareVectorInputPort("target", 3)
         self._q_port = self.DeclareVectorInputPort("robot_configuration", layout.NQ)
@@ -64,7 +73,7 @@ class GazeOptimizer(LeafSystem):
         # The trajectory's sweep (sphere FK once per trajectory), recomputed only when the input changes.
         self._sweep_cache = self.DeclareCacheEntry(
             "trajectory_sweep",
-            ValueProducer(allocate=lambda: AbstractValue.Make(None), calc=self._calc_sweep),
+            ValueProducer(allocate=lambda: AbstractValue.Make(_Sweep()), calc=self._calc_sweep),
             {self._trajectory_port.ticket()},
         )
         self._command_index = self.DeclareDiscreteState(BasicVector([0.0, 0.0]))
@@ -76,12 +85,13 @@ class GazeOptimizer(LeafSystem):
         return self._core
 
     def _calc_sweep(self, context, value: AbstractValue) -> None:
-        trajectory = self._trajectory_port.Eval(context) if self._trajectory_port.HasValue(context) else None
+        value_in = self._trajectory_port.Eval(context) if self._trajectory_port.HasValue(context) else None
+        trajectory = followed_trajectory(value_in)
         sweep = None
         if trajectory is not None and trajectory.num_waypoints >= 2:
             dt = self._core.config.waypoint_dt
             sweep = TrajectorySweep(trajectory.times, trajectory.q, dt=dt)
-        value.set_value(sweep)
+        value.set_value(_Sweep(sweep))
 
     def _update(self, context, discrete_state) -> EventStatus:
         t = context.get_time()
@@ -100,7 +110,7 @@ class GazeOptimizer(LeafSystem):
         look = self._look_port.Eval(context) if self._look_port.HasValue(context) else None
         t0 = time.perf_counter()
         try:
-            sweep = self._sweep_cache.Eval(context)
+            sweep = self._sweep_cache.Eval(context).sweep
             head = context.get_discrete_state(self._command_index).get_value()
             decision = decide_fetch_gaze(self._core, q, target, sweep, t_now, self._cameras, look, head)
             if self._timings is not None:

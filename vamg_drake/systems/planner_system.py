@@ -71,8 +71,8 @@ class PlannerSystem(LeafSystem):
         - robot_configuration (11-vector q)
         - target (3-vector p_WT, optional)
         output_ports:
-        - trajectory (PlannedTrajectory: the plan and its status)
-        - timed_trajectory (TimedTrajectory or None: what the tracker and the gaze follow)
+        - trajectory (PlannedTrajectory: the plan and its status; the tracker
+          and the gaze follow its ``trajectory``, None: hold still)
         - motion_feedback (MotionFeedback for the SubgoalPolicy)
 
     Goals: "plan" runs the whole-body planner from the current q; "linear"
@@ -115,9 +115,6 @@ class PlannerSystem(LeafSystem):
         self.DeclareAbstractOutputPort(
             "trajectory", lambda: AbstractValue.Make(PlannedTrajectory()),
             lambda context, value: value.set_value(self._motion(context).plan), motion_ticket)
-        self.DeclareAbstractOutputPort(  # None (hold still) is one of its values, hence the model
-            "timed_trajectory", lambda: AbstractValue.Make(None),
-            lambda context, value: value.set_value(self._motion(context).plan.trajectory), motion_ticket)
         self.DeclareStateOutputPort("motion_feedback", self._feedback_index)
         self.DeclarePeriodicUnrestrictedUpdateEvent(self._config.period, 0.0, self._update)
 

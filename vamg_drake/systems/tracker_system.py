@@ -11,24 +11,11 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 
 from vamg_drake.control.whole_body_tracker import TrackerCommand, TrackerConfig, TrackerStatus, WholeBodyTrackerCore
 from vamg_drake.perception.seen_space import LookGateConfig, SeenGrid, unseen_footprint
+from vamg_drake.planning.motion_messages import PlannedTrajectory, followed_trajectory
 from vamg_drake.robot import layout
 from vamg_drake.systems.robot_command import BASE_VELOCITY_SIZE, JOINT_VELOCITY_SIZE
 
 _log = logging.getLogger(__name__)
-
-
-def _unwrap_trajectory(value):
-    """The TimedTrajectory-like object inside a port value (or None).
-
-    Accepts a `TimedTrajectory` (anything with `.times` and `.q`), None, or a
-    container with a `.trajectory` attribute (the planner's `PlannedTrajectory`),
-    so the planner's `trajectory` port can be connected directly.
-    """
-    if value is None or (hasattr(value, "times") and hasattr(value, "q")):
-        return value
-    if hasattr(value, "trajectory"):
-        return _unwrap_trajectory(value.trajectory)
-    return value
 
 
 class TrackerMemory:
@@ -68,7 +55,7 @@ class WholeBodyTracker(LeafSystem):
 
         name: WholeBodyTracker
         input_ports:
-        - trajectory (TimedTrajectory, PlannedTrajectory or None)
+        - trajectory (PlannedTrajectory; a bare TimedTrajectory is accepted too)
         - robot_configuration (11-vector q)
         - seen_space (SeenGrid, optional)
         output_ports:
@@ -84,7 +71,8 @@ class WholeBodyTracker(LeafSystem):
     reason), and stores the core's command; the outputs hold it between ticks
     (zero-order hold). `base_velocity` and `joint_velocity` connect to the
     `RobotCommandIntegrator`'s ports of the same names. An unconnected
-    trajectory port, or None, means no trajectory: zero command, ``idle``.
+    trajectory port, or a plan without a trajectory, means no trajectory:
+    zero command, ``idle``.
 
     Look before you leave: with `seen_space` connected and ``look.enabled``,
     the robot holds (zero command, status ``waiting``) while the base footprint
@@ -103,8 +91,7 @@ class WholeBodyTracker(LeafSystem):
         self._config = config or TrackerConfig()
         self._look = look or LookGateConfig()
         self._look.validate()
-        # None is a value of this port (no trajectory: hold still), hence its model.
-        self._trajectory_port = self.DeclareAbstractInputPort("trajectory", AbstractValue.Make(None))
+        self._trajectory_port = self.DeclareAbstractInputPort("trajectory", AbstractValue.Make(PlannedTrajectory()))
         self._q_port = self.DeclareVectorInputPort("robot_configuration", layout.NQ)
         self._seen_port = self.DeclareAbstractInputPort("seen_space", AbstractValue.Make(SeenGrid.around(np.zeros(2))))
         self._u_index = self.DeclareDiscreteState(BASE_VELOCITY_SIZE + JOINT_VELOCITY_SIZE)
@@ -153,7 +140,7 @@ class WholeBodyTracker(LeafSystem):
     def _update(self, context, state) -> EventStatus:
         q = np.asarray(self._q_port.Eval(context), dtype=float)
         value = self._trajectory_port.Eval(context) if self._trajectory_port.HasValue(context) else None
-        trajectory = _unwrap_trajectory(value)
+        trajectory = followed_trajectory(value)
         gate = context.get_abstract_state(self._gate_index).get_value()
         memory: TrackerMemory = state.get_mutable_abstract_state(self._memory_index).get_mutable_value()
         if trajectory is not memory.loaded:
