@@ -8,7 +8,6 @@ import json
 from pathlib import Path
 
 from vamg_drake.bench.grasp_trials import GraspTrialConfig, collect, load_dataset
-from vamg_drake.bench.grasp_training import GraspTrainingConfig, train_model
 from vamg_drake.config_validation import InputError, load_typed_file
 from vamg_drake.policy.learned_grasps import DEFAULT_MODEL_PATH
 
@@ -31,11 +30,16 @@ def _cmd_collect(args) -> int:
 
 
 def _cmd_train(args) -> int:
+    # torch takes ~1.5 s to import; only training needs it, not every `vamg` command.
+    from vamg_drake.bench.grasp_training import GraspTrainingConfig, train_model
+
     try:
         data = load_dataset(args.data)
     except ValueError as e:
         raise SystemExit(f"vamg grasps train: {e}") from None
-    config = GraspTrainingConfig(epochs=args.epochs, seed=args.seed)
+    config = GraspTrainingConfig(seed=args.seed)
+    if args.epochs is not None:
+        config = GraspTrainingConfig(epochs=args.epochs, seed=args.seed)
 
     def progress(epoch: int, loss: float) -> None:
         if not args.quiet and (epoch % 10 == 0 or epoch == config.epochs - 1):
@@ -64,7 +68,7 @@ def add_grasps_subparser(sub: argparse._SubParsersAction) -> None:
     tr = grasps_sub.add_parser("train", help="train the grasp-quality model on collected trials")
     tr.add_argument("--data", required=True, help="a directory written by `vamg grasps collect`")
     tr.add_argument("--out", default=str(DEFAULT_MODEL_PATH), help=f"model file (default {DEFAULT_MODEL_PATH})")
-    tr.add_argument("--epochs", type=int, default=GraspTrainingConfig.epochs)
+    tr.add_argument("--epochs", type=int, default=None, help="training epochs (default: GraspTrainingConfig's)")
     tr.add_argument("--seed", type=int, default=0)
     tr.add_argument("--quiet", action="store_true")
     tr.set_defaults(func=_cmd_train)
