@@ -219,7 +219,7 @@ def test_support_surface_does_not_hide_a_small_target_but_a_wall_does(pipeline) 
     q = layout.stow_configuration(-0.3, 0.0, 0.0)
     vis = pipeline.visibility
     assert vis.check(q[None], target, counter)[0][0]
-    strict = type(vis)(dc.replace(vis.config, support_tolerance=np.inf))
+    strict = type(vis)(vis.camera, dc.replace(vis.config, support_tolerance=np.inf))
     assert not strict.check(q[None], target, counter)[0][0]  # every point near the line blocks it
     # A panel standing across the line of sight still hides the target.
     ys, zs = np.meshgrid(np.arange(-0.3, 0.3, 0.03), np.arange(0.9, 1.3, 0.03), indexing="ij")
