@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from vamg_drake.cli import main as cli_main
 from vamg_drake.systems.dynamic_obstacles import approach_triggered, first_clear_candidate
 from vamg_drake.world.paper_tasks import (
     PaperTaskConfig,
@@ -23,7 +24,7 @@ from vamg_drake.world.paper_tasks import (
     read_task_file,
 )
 from vamg_drake.world.primitives import signed_distance_to_polygon
-from vamg_drake.world.scenario import AppearAtDistance, AppearAtPhase
+from vamg_drake.world.scenario import AppearAtDistance, AppearAtPhase, load_scenario
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 TASK_FILE = Path(os.environ.get("VAMG_PAPER_TASKS", SHARED / "paper_benchmark" / "grasp_benchmark_dev.json"))
@@ -228,8 +229,14 @@ def test_file_with_only_scenes_3_and_17_imports(tmp_path):
     path = _write(tmp_path, subset)
     scenes = read_task_file(path)
     assert [s.index for s in scenes] == [3, 17]
-    apartments = [import_scene(s, dynamic=False, dataset_dir=REPLICACAD, tasks=[1]).apartment for s in scenes]
-    assert apartments == ["apt_4", "apt_3"]
+    # Through the command, into an --out folder that does not exist yet.
+    out = tmp_path / "suites" / "subset"
+    assert cli_main(["scenario", "import-tasks", str(path), "--out", str(out), "--tasks", "1",
+                     "--replicacad-dir", str(REPLICACAD)]) == 0
+    report = json.loads((out / "import.json").read_text())
+    assert [scene["apartment"] for scene in report["scenes"]] == ["apt_4", "apt_3"]
+    written = sorted(p.name for p in out.glob("*.yaml"))
+    assert len(written) == 2 and all(load_scenario(out / name).replicacad for name in written)
 
 
 @needs_task_file

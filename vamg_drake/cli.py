@@ -38,6 +38,7 @@ from vamg_drake.config_validation import InputError
 from vamg_drake.diagram import POLICIES, DiagramConfig, load_diagram_config
 from vamg_drake.episode import ERROR, run_episode
 from vamg_drake.policy.maps_cli import add_maps_subparser
+from vamg_drake.provenance import atomic_write_text
 from vamg_drake.rendering_check import check_rendering_libraries
 from vamg_drake.world.paper_tasks import TaskFileError, import_scene, read_task_file
 from vamg_drake.world.replicacad import ReplicaCadError
@@ -153,6 +154,10 @@ def _cmd_scenario_import_tasks(args) -> int:
     if out.exists() and not out.is_dir():
         raise SystemExit(f"vamg scenario import-tasks: --out {out} exists and is not a directory")
     try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise SystemExit(f"vamg scenario import-tasks: --out {out}: {e.strerror}") from None
+    try:
         scenes = read_task_file(args.task_file)
         report = []
         count = 0
@@ -167,9 +172,8 @@ def _cmd_scenario_import_tasks(args) -> int:
                   f"{len(scene.tasks)}), {len(imported.scenarios)} scenarios, {len(imported.excluded)} excluded")
     except (TaskFileError, ReplicaCadError) as e:
         raise SystemExit(f"vamg scenario import-tasks: {e}") from None
-    tmp = out / "import.json.tmp"
-    tmp.write_text(json.dumps({"task_file": str(args.task_file), "dynamic": args.dynamic, "scenes": report}, indent=1))
-    tmp.replace(out / "import.json")
+    atomic_write_text(out / "import.json",
+                      json.dumps({"task_file": str(args.task_file), "dynamic": args.dynamic, "scenes": report}, indent=1))
     print(f"wrote {count} scenarios and import.json to {out}")
     return 0
 
