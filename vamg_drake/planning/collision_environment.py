@@ -25,8 +25,8 @@ def support_height(points: np.ndarray, p_WT: np.ndarray, radius: float, bin_size
     below the target (a table top is a plane of many points; the object's own
     points spread over its height). -inf when that bin's points do not spread
     out under the target like a surface (std < 0.3 `radius` along x or y) or
-    there are none. (The bin's upper edge plus 1 cm, the former rule, lay up
-    to 2 cm over the table: above the middle of a 2 cm Lego brick, static s0009.)
+    there are none. (The median, not the bin's upper edge plus a margin: that
+    can lie up to 2 cm over the table, above the middle of a 2 cm Lego brick.)
     """
     p = np.asarray(points, dtype=float).reshape(-1, 3)
     near = p[(np.linalg.norm(p[:, :2] - p_WT[:2], axis=1) <= radius) & (p[:, 2] <= p_WT[2])

@@ -170,7 +170,7 @@ def edt_3d(occupied: np.ndarray, h: float) -> np.ndarray:
     occupied. Exact (separable squared-distance transform, one pass per axis),
     O(cells), no index arrays: 5.7x faster than SciPy's
     `distance_transform_edt` on 6M-cell room grids, with the same float32
-    distances (benchmarks/bench_motion_layer.py, session 8, idle machine)."""
+    distances (as measured by benchmarks/bench_motion_layer.py on an idle machine)."""
     g = np.where(np.asarray(occupied, dtype=bool), 0.0, np.inf)
     m = max(g.shape)
     scratch = (np.empty(m), np.empty(m), np.empty(m, dtype=np.int64), np.empty(m + 1))

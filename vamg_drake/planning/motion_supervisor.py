@@ -76,19 +76,19 @@ class PlannerSystemConfig:
             a pre-grasp or grasp-move motion (`approach_retreat`), and on a
             grasp-move motion that starts with the gripper already around the
             target (from the reached pre-grasp). Everywhere else they are
-            obstacles to the gripper too (static s0001: with the exemption on
-            every motion the palm swept through the target between two
-            pre-grasp poses; static s0008: the gripper touched the table while
-            unfolding the arm from the stow to a grasp's pre-grasp) [m].
+            obstacles to the gripper too: with the exemption on every motion,
+            the palm could sweep through the target between two pre-grasp
+            poses, and the gripper could strike the table while unfolding the
+            arm from the stow to a grasp's pre-grasp [m].
         reach_tolerance: every joint of q within this of the goal reports REACHED.
         linear_reach_tolerance: the same for "linear" goals (the grasp approach
             and lift), which must end on the grasp pose: 0.03 rad per arm joint
-            left the gripper 1.5-2 cm off it (static s0003).
+            can leave the gripper 1.5-2 cm off it, enough to miss a small object.
         settle_time: after the trajectory's end, how long the robot may take to
             settle within `reach_tolerance` [s], plus `settle_time_fraction`
             of the trajectory's duration (the tracker follows the path, not
-            the clock, and falls behind on long motions: seed 0 was 3.5 s
-            late on a 6.4 s motion ending in a three-point turn) ...
+            the clock, and falls behind on long motions: a 6.4 s motion ending
+            in a three-point turn can end 3.5 s late) ...
         settle_tolerance: ... after which a q within this looser tolerance still
             counts as REACHED; farther away the motion FAILED.
         max_replans: replans after invalidations per goal (the appendix's K).
@@ -101,7 +101,7 @@ class PlannerSystemConfig:
             cache, seconds when compiling).
         floor_clearance: a planned path whose arm spheres come closer to the
             floor than this is rejected (FAILED, `FLOOR_REASON`); the floor is
-            not in the map (static s0000: the gripper touched the floor) [m].
+            not in the map, so nothing else keeps the gripper off it [m].
         approach_retreat: a pre-grasp or grasp-move goal whose gripper touches
             the target's points (the open fingers straddle the object, and the
             sphere model fills the space between them) is reached in two parts: a path free
@@ -110,15 +110,16 @@ class PlannerSystemConfig:
             reach back so far; IK, base and torso fixed), then the
             straight joint-space approach, on which the gripper may touch the
             target's points as the pre-grasp sampler allows. Without it such
-            goals were "in collision" for the planner, which plans pre-grasp
-            motions with the target's points as obstacles to the gripper too
-            (the pedestrian test: ten pre-grasp goals in a row) [m]; 0 = off.
+            goals are "in collision" for the planner, which plans pre-grasp
+            motions with the target's points as obstacles to the gripper too,
+            so every pre-grasp goal around the target fails [m]; 0 = off.
         retreat_history_time: when the map puts the start in collision (points
             seen late, inside the sphere model that bulges past the robot's
             geometry), the robot backs out along at most this much of its own
             recent path [s] to the first configuration the padded spheres
-            find free, and the goal is planned from there (static s0001: three
-            pre-grasp motions failed at once and the episode ended); 0 = off.
+            find free, and the goal is planned from there (without it every
+            motion from such a start fails at once, and the failures end the
+            episode); 0 = off.
         recheck_period: the trajectory is re-checked against a newer map at
             most this often, except when a new goal must be planned at once [s].
         incremental_check: re-check the trajectory against only the map points
@@ -126,8 +127,9 @@ class PlannerSystemConfig:
             small distance field of their own, and rebuild the planning
             environment only to plan: the rest of the path was free of the
             older points when it was planned or last rebuilt. Rebuilding a
-            room-sized distance field costs 0.1-0.6 s and was 40 % of an
-            episode's wall time (static s0006: 82 rebuilds in 31 s).
+            room-sized distance field costs 0.1-0.6 s, and rebuilding it for
+            every re-check (tens of times an episode) can take 40 % of the
+            episode's wall time.
         planner: the planner's `PlannerConfig`.
     """
 

@@ -133,9 +133,9 @@ class BehaviourConfig:
     max_total_failures: int = 10
     max_pregrasp_goals: int = 6
     max_observe_goals: int = 4
-    #: Goal invalidations allowed since the last reached goal (10 over the
-    #: whole episode ended static s0002 at 9.9 s, while the first views of the
-    #: room kept invalidating the first pre-grasp goals; each costs a resample).
+    #: Goal invalidations allowed since the last reached goal (the first views
+    #: of the room keep invalidating the first pre-grasp goals, so a budget of
+    #: about 10 per episode can end it in seconds; each costs a resample).
     max_invalidations: int = 30
     #: Base displacement that unblocks the grasp stage after a failed grasp motion [m].
     unblock_distance: float = 0.1
@@ -143,8 +143,8 @@ class BehaviourConfig:
     close_duration: float = 1.0
     #: Lift height by the torso after closing [m] (clipped to the torso limit).
     #: Above the monitor's 10 cm success height by 5 cm: held objects settle
-    #: 1-3 cm down in the fingers as they leave the table (session 7's static
-    #: run with 12 cm: a pear, a banana and Lego bricks held at 9.0-9.8 cm).
+    #: 1-3 cm down in the fingers as they leave the table (with a 12 cm lift,
+    #: objects such as a pear, a banana or a Lego brick end held at 9.0-9.8 cm).
     lift_height: float = 0.15
 
     def __post_init__(self) -> None:

@@ -155,8 +155,8 @@ class AntipodalGraspConfig:
     #: the pad's half width on both sides of the pads' middle. The contact pair
     #: sampled is not where flat pads touch first: a cube closed diagonally is
     #: touched at its edges near the fingertips and spun out, a cup closed in
-    #: front of its widest section is pushed out (static s0003, s0004, s0007:
-    #: the fingers closed on air after first touching the object at the tips).
+    #: front of its widest section is pushed out, and the fingers close on
+    #: air after first touching the object at the tips.
     contact_band: float = 0.003
     min_tip_distance: float = 0.01
     #: Friction coefficient of the first-contact test (the simulated fingers'
@@ -173,8 +173,8 @@ class AntipodalGraspConfig:
     #: (beyond the 5 mm for sensor noise of `support_height`).
     #: They pass the same clearance and first-contact tests as the antipodal
     #: pairs, whose random seeds and PCA normals rarely pair up on a small or
-    #: lumpy object (static s0009: one grasp on a Lego brick; marbles,
-    #: racquetball, plum: none or none reachable).
+    #: lumpy object (a Lego brick may get a single pair; marbles, a
+    #: racquetball or a plum none, or none reachable).
     top_down_yaws: int = 16
     top_down_floor_clearance: float = 0.0
     #: Grasp quality (in [0, 1], as the antipodal alignment) given to top-down grasps.

@@ -100,14 +100,14 @@ class StrategyConfig:
         grasp_patience: nav_and_manip and capmap_placement keep sampling grasps
             from the reached base for this long while the head looks at the
             target, before a failed sample ends the episode: on arrival the
-            map has seen the target from afar only (static s0003: "every
-            IK-valid ranked grasp is in collision with the map" on the first
-            tick at the base) [s].
+            map has seen the target from afar only, and its sparse, noisy
+            points can put every IK-valid ranked grasp in collision until
+            closer views arrive [s].
         max_same_goal_replans: an invalidated goal that the samplers still call
             free is replanned this many times in a row, then resampled: the
-            planner's check is the stricter one (static s0044, nav_and_manip:
-            one grasp-move goal "in collision" thirty times in a row until
-            "the map invalidated the goal too often").
+            planner's check is the stricter one, and replanning the same goal
+            without limit can spend the whole invalidation budget on a goal
+            the planner keeps calling "in collision".
     """
 
     nav_standoff: list[float] = dc.field(default_factory=lambda: [0.8, 0.7, 0.9])

@@ -15,8 +15,8 @@ The gripper keeps clear of the target's support surface in that ball too
 (`CollisionEnvironment.grasp_target_floor`), except at the grasp and on the
 approach to it (`collision_fn(..., grasp=True)`): there the grasp source's
 own finer check of the gripper decides, since the collision model's finger
-spheres reach 1 cm past the fingertips and left no grasp of a 2 cm Lego brick
-on a counter (static s0009).
+spheres reach 1 cm past the fingertips and would leave no grasp of a small
+object, such as a 2 cm Lego brick, on a counter.
 
 Target checks (bad input): a non-finite target, or one enclosed by map points
 on (nearly) all sides -- inside furniture -- fails every stage at once with a
@@ -92,8 +92,8 @@ class SubgoalPipelineConfig:
     aimed_grasp_tolerance: float = 0.15
     #: ... and when the current candidates (from the denser cloud seen on
     #: arrival) still hold one within this SE(3) distance of it (`pose_distance`,
-    #: metres + 0.1 per radian); that candidate is tried (static s0003: a grasp
-    #: chosen from the far, sparse view closed the fingertips on a cube's top edge).
+    #: metres + 0.1 per radian); that candidate is tried (a grasp chosen from
+    #: the far, sparse view can close the fingertips on a cube's top edge).
     #: Otherwise the aimed grasp itself is tried if the grasp source re-checks it
     #: on the close view and it still passes (`AntipodalGraspSampler.verify`).
     aimed_grasp_match: float = 0.03
@@ -103,8 +103,8 @@ class SubgoalPipelineConfig:
     #: proposal puts the arm at that grasp's pre-grasp pose instead (same base
     #: and torso; if the target stays visible from there). Either way the
     #: grasp-move starts where it ends. Otherwise the arm reconfigured next to
-    #: the target and, starting with the gripper around it, swept the soup can
-    #: over (static s0014: 1.3 m of gripper travel from 8 cm away).
+    #: the target and, starting with the gripper around it, could sweep the
+    #: object over (a metre or more of gripper travel to a goal a few cm away).
     pregrasp_at_aimed_grasp: bool = True
     #: Enclosure test: rays from the target, blocked by a point within
     #: ``enclosure_ray_radius`` of the ray between ``enclosure_min_distance``

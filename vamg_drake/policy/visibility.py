@@ -32,18 +32,19 @@ class VisibilityConfig:
     point_occlusion_radius: float = 0.03
     #: The robot's spheres block the line of sight with their radii scaled by
     #: this: they cover the links with a bulge (the palm's 5.9 cm spheres cover
-    #: a 4 cm half-height box), and a self-occlusion test needs no such margin
-    #: (static s0004: 0 of 4 collision-free pre-grasps "visible").
+    #: a 4 cm half-height box), and a self-occlusion test needs no such margin:
+    #: at full radius the bulge can hide the target from every collision-free pre-grasp.
     self_occlusion_radius_scale: float = 0.7
     #: The gripper's own spheres do not block the line of sight: at a
     #: pre-grasp the open hand stands 5 cm from the target, around or above
-    #: it, and hides at most part of it (static s0009: a Lego brick's only
-    #: grasps were top-down, and every such pre-grasp was "not visible").
+    #: it, and hides at most part of it (a small object such as a Lego brick
+    #: may have only top-down grasps, and the hand above it would make every
+    #: such pre-grasp "not visible").
     self_occlusion_ignores_gripper: bool = True
     #: A map point more than this below the line of sight (at its closest
     #: point) does not block it: the table under a small target lies just
-    #: below every low view of it (static s0009: the table top 6 mm under a
-    #: Lego brick's centre hid it from every observe pose). A surface that
+    #: below every low view of it (a 2 cm Lego brick on a table: the table top
+    #: lies 6 mm under its centre and hides it from every low view). A surface that
     #: crosses the line has map points above it or within this too [m].
     support_tolerance: float = 0.01
 

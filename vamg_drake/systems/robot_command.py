@@ -35,7 +35,7 @@ class RobotCommandIntegrator(LeafSystem):
             saturates (the shoulder pan, 33.8 N m, with the arm unfolded) fell
             0.55 rad behind the integrated target, and the tracker's feedback
             on the measured state then drove it through a limit cycle at the
-            rate limits (static s0001: a pre-grasp motion stalled at a stop).
+            rate limits, so that a motion could stall at a joint stop.
     Output ports:
         desired_state: [q_d, v_d] for the robot's actuators, in actuator order.
         desired_configuration: the extended desired configuration (15,).
