@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vamg_drake.perception.depth_points import DepthToPointsConfig
 from vamg_drake.policy.behaviour_tree import MotionEvent, Phase, PolicyInputs
 from vamg_drake.policy.kinematic_maps import KinematicMaps
 from vamg_drake.policy.strategies import BEHAVIOURS, make_strategy
@@ -42,7 +43,7 @@ def run_strategy(strategy: str, problems, maps: KinematicMaps, seed: int) -> dic
     """Steps ``strategy`` on every problem with ideal execution; returns its metrics."""
     decision_ms, goals_to_grasp, outcomes = [], [], {}
     for i, (points, target, q0) in enumerate(problems):
-        pipeline = SubgoalPipeline(maps, HeadCameraConfig(), seed=seed + i)
+        pipeline = SubgoalPipeline(maps, HeadCameraConfig(), DepthToPointsConfig().depth_max, seed=seed + i)
         behaviour = make_strategy(strategy, pipeline)
         state = behaviour.initial_state()
         q, t, event, outcome = q0, 0.0, MotionEvent.NONE, "not_converged"
@@ -80,7 +81,7 @@ def main() -> None:
     maps = KinematicMaps.load_or_build()
     points, target, q0 = problems[0]
     for strategy in BEHAVIOURS:  # warm-up: JIT compilation is not a decision's cost
-        behaviour = make_strategy(strategy, SubgoalPipeline(maps, HeadCameraConfig()))
+        behaviour = make_strategy(strategy, SubgoalPipeline(maps, HeadCameraConfig(), DepthToPointsConfig().depth_max))
         behaviour.step(behaviour.initial_state(), PolicyInputs(0.0, q0, points, target))
     result = {"problems": args.problems, "seed": args.seed, "max_goals": MAX_GOALS}
     for strategy in BEHAVIOURS:  # subgoal_tree (the reference) first

@@ -33,6 +33,7 @@ import time
 import numpy as np
 
 from vamg_drake.testing import synthetic_clouds
+from vamg_drake.perception.depth_points import DepthToPointsConfig
 from vamg_drake.policy.grasp_candidates import AntipodalGraspSampler
 from vamg_drake.policy.ik import DrakeIk, FastIk
 from vamg_drake.policy.kinematic_maps import KinematicMaps
@@ -91,7 +92,7 @@ def main() -> None:
     t0 = time.perf_counter()
     maps = KinematicMaps.load_or_build()
     maps_load_s = time.perf_counter() - t0
-    pipeline = SubgoalPipeline(maps, HeadCameraConfig())
+    pipeline = SubgoalPipeline(maps, HeadCameraConfig(), DepthToPointsConfig().depth_max)
     sampler: PregraspSampler = pipeline.pregrasp
     grasp_source = AntipodalGraspSampler()
     rng = np.random.default_rng(2024)

@@ -9,6 +9,7 @@ import pytest
 
 from behaviour_stepper import Stepper
 from vamg_drake.testing import synthetic_clouds as clouds
+from vamg_drake.perception.depth_points import DepthToPointsConfig
 from vamg_drake.policy.behaviour_tree import FailureCategory, MotionEvent, Phase, PolicyInputs, SubgoalBehaviour
 from vamg_drake.policy.kinematic_maps import KinematicMaps
 from vamg_drake.policy.pregrasp_sampler import BaseCostmap, CostmapConfig
@@ -20,7 +21,7 @@ from vamg_drake.robot.kinematics import FetchKinematics
 
 @pytest.fixture(scope="module")
 def pipeline() -> SubgoalPipeline:
-    return SubgoalPipeline(KinematicMaps.load_or_build(), HeadCameraConfig(), seed=0)
+    return SubgoalPipeline(KinematicMaps.load_or_build(), HeadCameraConfig(), DepthToPointsConfig().depth_max, seed=0)
 
 
 @pytest.fixture(scope="module")
@@ -219,7 +220,7 @@ def test_support_surface_does_not_hide_a_small_target_but_a_wall_does(pipeline) 
     q = layout.stow_configuration(-0.3, 0.0, 0.0)
     vis = pipeline.visibility
     assert vis.check(q[None], target, counter)[0][0]
-    strict = type(vis)(vis.camera, dc.replace(vis.config, support_tolerance=np.inf))
+    strict = type(vis)(vis.camera, vis.max_depth, dc.replace(vis.config, support_tolerance=np.inf))
     assert not strict.check(q[None], target, counter)[0][0]  # every point near the line blocks it
     # A panel standing across the line of sight still hides the target.
     ys, zs = np.meshgrid(np.arange(-0.3, 0.3, 0.03), np.arange(0.9, 1.3, 0.03), indexing="ij")
@@ -264,7 +265,8 @@ def test_pregrasp_proposal_is_the_pregrasp_of_its_accepted_grasp(scene) -> None:
     for aimed in (True, False):
         moves = []
         for seed in range(4):
-            p = SubgoalPipeline(KinematicMaps.load_or_build(), HeadCameraConfig(), seed=seed)
+            p = SubgoalPipeline(KinematicMaps.load_or_build(), HeadCameraConfig(), DepthToPointsConfig().depth_max,
+                                seed=seed)
             p.config.pregrasp_at_aimed_grasp = aimed
             pre = p.sample_pregrasp(PolicyInputs(0.0, q0, points, target, dense))
             assert pre.success, pre.failure_reason

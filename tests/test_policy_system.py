@@ -8,6 +8,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource, ConstantVectorSource
 
+from vamg_drake.perception.depth_points import DepthToPointsConfig
 from vamg_drake.perception.raycast_map import PointMapSnapshot
 from vamg_drake.policy.behaviour_tree import (
     MotionEvent,
@@ -105,7 +106,7 @@ def test_real_subgoal_policy_in_a_diagram() -> None:
     points, target = synthetic_clouds.tabletop_scene()
     q0 = layout.stow_configuration(-1.5, 0.5, 0.0)
     builder = DiagramBuilder()
-    policy = builder.AddSystem(make_subgoal_policy(HeadCameraConfig()))
+    policy = builder.AddSystem(make_subgoal_policy(HeadCameraConfig(), DepthToPointsConfig().depth_max))
     snapshot = PointMapSnapshot(points, np.floor(points / 0.03).astype(np.int64), 0.03, 1)
     m = builder.AddSystem(ConstantValueSource(AbstractValue.Make(snapshot)))
     q = builder.AddSystem(ConstantVectorSource(q0))

@@ -15,6 +15,7 @@ from scenes import box_room_scenario
 from vamg_drake.bench.methods import known_methods, load_method
 from vamg_drake.diagram import DiagramConfig, build_diagram, load_diagram_config
 from vamg_drake.testing import synthetic_clouds as clouds
+from vamg_drake.perception.depth_points import DepthToPointsConfig
 from vamg_drake.policy.behaviour_tree import (
     BehaviourConfig,
     FailureCategory,
@@ -268,7 +269,7 @@ def maps() -> KinematicMaps:
 
 @pytest.fixture(scope="module")
 def pipeline(maps) -> SubgoalPipeline:
-    return SubgoalPipeline(maps, HeadCameraConfig(), seed=0)
+    return SubgoalPipeline(maps, HeadCameraConfig(), DepthToPointsConfig().depth_max, seed=0)
 
 
 @pytest.fixture(scope="module")
@@ -334,7 +335,7 @@ def test_real_capmap_placement(maps, scene) -> None:
     q0 = layout.stow_configuration(-1.5, 0.5, 0.0)
     grasped = 0
     for seed in range(4):  # one base sample per episode: some seeds give no grasp from it
-        pipeline = SubgoalPipeline(maps, HeadCameraConfig(), seed=seed)
+        pipeline = SubgoalPipeline(maps, HeadCameraConfig(), DepthToPointsConfig().depth_max, seed=seed)
         bt = Stepper(make_strategy("capmap_placement", pipeline))
         cmd = bt.step(PolicyInputs(0.0, q0, points, target))
         assert cmd.phase == Phase.PREGRASP, bt.tree_status()
@@ -359,7 +360,8 @@ def test_real_direct_grasping(maps, scene) -> None:
     kin = FetchKinematics.instance()
     grasped = 0
     for seed in range(4):  # one pre-grasp sample per episode: some seeds give no grasp
-        bt = Stepper(make_strategy("direct_grasping", SubgoalPipeline(maps, HeadCameraConfig(), seed=seed)))
+        pipeline = SubgoalPipeline(maps, HeadCameraConfig(), DepthToPointsConfig().depth_max, seed=seed)
+        bt = Stepper(make_strategy("direct_grasping", pipeline))
         cmd = bt.step(PolicyInputs(0.0, q0, points, target))
         assert cmd.phase == Phase.OBSERVE, bt.tree_status()
         np.testing.assert_allclose(cmd.q_goal[layout.ARM], layout.Q_ARM_STOW)
@@ -424,7 +426,7 @@ def test_strategy_registry_and_bad_input(pipeline) -> None:
     from vamg_drake.systems.subgoal_policy_system import make_subgoal_policy
 
     with pytest.raises(ValueError, match="make_subgoal_policy: unknown strategy"):
-        make_subgoal_policy(HeadCameraConfig(), strategy="teleport")
+        make_subgoal_policy(HeadCameraConfig(), DepthToPointsConfig().depth_max, strategy="teleport")
     for bad in (dict(nav_standoff=[]), dict(nav_standoff=[0.8, -1.0]), dict(capmap_tries=0), dict(avoid_radius=-0.1)):
         with pytest.raises(ValueError, match="StrategyConfig"):
             StrategyConfig(**bad)

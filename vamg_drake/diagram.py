@@ -315,8 +315,8 @@ def _add_full_system(builder: DiagramBuilder, ed: EpisodeDiagram, scenario: Scen
     builder.Connect(q, cloud.GetInputPort("robot_configuration"))
 
     policy = builder.AddNamedSystem("subgoal_policy", make_subgoal_policy(
-        config.world.camera, config.subgoal, config.behaviour, config.policy_system, seed=config.seed,
-        timings=timings, strategy=config.strategy, collision=config.planner.planner.checker_config()))
+        config.world.camera, config.map.depth.depth_max, config.subgoal, config.behaviour, config.policy_system,
+        seed=config.seed, timings=timings, strategy=config.strategy, collision=config.planner.planner.checker_config()))
     planner = builder.AddNamedSystem("planner", PlannerSystem(_seeded_planner_config(config), timings=timings))
     tracker = builder.AddNamedSystem("tracker", WholeBodyTracker(config.tracker, config.look))
     depth_range = config.map.depth

@@ -145,6 +145,9 @@ class SubgoalPipeline:
         maps: the kinematic maps.
         camera: the head camera (``WorldConfig.camera``) whose view the
             visibility checks model.
+        max_depth: the depth range of the visibility checks [m]: the range
+            within which the map integrates the camera's points (the map's
+            `DepthToPointsConfig.depth_max`, see `TargetVisibility`).
         grasp_source: the grasp candidates (default: ``config.grasp_source``).
         config: the samplers' parameters.
         seed: seed of the samplers' random generator.
@@ -159,6 +162,7 @@ class SubgoalPipeline:
         self,
         maps: KinematicMaps,
         camera: HeadCameraConfig,
+        max_depth: float,
         grasp_source: GraspCandidateSource | None = None,
         config: SubgoalPipelineConfig | None = None,
         seed: int = 0,
@@ -172,7 +176,7 @@ class SubgoalPipeline:
         self.maps = maps
         self.grasp_source = grasp_source or make_grasp_source(self.config.grasp_source, self.config.grasps)
         self.ik = FastIk()
-        self.visibility = TargetVisibility(camera)
+        self.visibility = TargetVisibility(camera, max_depth)
         self.pregrasp = PregraspSampler(maps, self.ik, self.visibility, self.config.pregrasp)
         self.observe = ObserveSampler(self.visibility, self.config.observe)
         self.spheres = SphereModel.load()

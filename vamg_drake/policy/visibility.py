@@ -2,7 +2,7 @@
 
 `TargetVisibility.check` aims the pan/tilt head at the target (closed form,
 per configuration), then requires the target inside the camera's field of view
-and depth range, and the line of sight free of the robot's own spheres (the
+and the map's depth range, and the line of sight free of the robot's own spheres (the
 self-occlusion check of the pre-grasp sampler) and, optionally, of map points
 (used by the observe sampler).
 """
@@ -20,10 +20,9 @@ from vamg_drake.robot.spheres import SphereModel
 @dc.dataclass
 class VisibilityConfig:
     """Parameters of the target visibility check (the camera itself is a
-    `HeadCameraConfig` given to `TargetVisibility`)."""
+    `HeadCameraConfig`, and the depth range the map's `DepthToPointsConfig.depth_max`,
+    both given to `TargetVisibility`)."""
 
-    #: Largest depth at which the target counts as seen [m] (the map's range).
-    max_depth: float = 3.0
     #: Shrink of the field of view on each side [rad].
     fov_margin: float = 0.05
     #: The line of sight stops this short of the target (the target's own surface) [m].
@@ -55,12 +54,21 @@ class TargetVisibility:
     Args:
         camera: the simulated head camera (``WorldConfig.camera``): its field
             of view is the one the depth renderer has.
+        max_depth: the largest depth at which the target counts as seen [m]:
+            the range within which the map integrates the camera's points
+            (`DepthToPointsConfig.depth_max`, the diagram's ``config.map.depth``).
+            A target seen farther away adds no points to the map.
         config: the check's margins.
     """
 
-    def __init__(self, camera: HeadCameraConfig, config: VisibilityConfig | None = None) -> None:
+    def __init__(self, camera: HeadCameraConfig, max_depth: float, config: VisibilityConfig | None = None) -> None:
+        if not max_depth > camera.depth_min:
+            raise ValueError(f"TargetVisibility: max_depth must exceed the camera's depth_min "
+                             f"({camera.depth_min} m), got {max_depth}")
         self.config = config or VisibilityConfig()
         self.camera = camera
+        #: Largest depth at which the target counts as seen [m] (the map's range).
+        self.max_depth = float(max_depth)
         self.kin = FetchKinematics.instance()
         self.spheres = SphereModel.load()
         self.intrinsics = CameraIntrinsics.from_config(self.camera)
@@ -108,7 +116,7 @@ class TargetVisibility:
         with np.errstate(divide="ignore", invalid="ignore"):
             in_fov = (
                 (depth > self.camera.depth_min)
-                & (depth < cfg.max_depth)
+                & (depth < self.max_depth)
                 & (np.abs(np.arctan2(p_C[:, 0], depth)) < half_x)
                 & (np.abs(np.arctan2(p_C[:, 1], depth)) < half_y)
             )

@@ -146,6 +146,7 @@ class SubgoalPolicy(LeafSystem):
 
 def make_subgoal_policy(
     camera: HeadCameraConfig,
+    max_depth: float,
     pipeline_config: SubgoalPipelineConfig | None = None,
     behaviour_config: BehaviourConfig | None = None,
     config: SubgoalPolicyConfig | None = None,
@@ -158,7 +159,8 @@ def make_subgoal_policy(
 ) -> SubgoalPolicy:
     """The SubgoalPolicy over the real samplers (kinematic maps built on first use).
 
-    ``camera`` is the world's head camera and ``collision`` the planner's
+    ``camera`` is the world's head camera, ``max_depth`` the map's depth range
+    (`DepthToPointsConfig.depth_max`) and ``collision`` the planner's
     collision check parameters (see `SubgoalPipeline`). ``strategy`` picks the behaviour (`vamg_drake.policy.strategies.BEHAVIOURS`:
     the full system's subgoal tree or a baseline). ``timings`` (a
     `ModuleTimings`) collects the samplers' and the grasp candidates' costs.
@@ -168,6 +170,6 @@ def make_subgoal_policy(
     """
     if strategy not in BEHAVIOURS:
         raise ValueError(f"make_subgoal_policy: unknown strategy '{strategy}' (known: {', '.join(BEHAVIOURS)})")
-    pipeline = SubgoalPipeline(maps or KinematicMaps.load_or_build(), camera, config=pipeline_config, seed=seed,
-                               timings=timings, collision=collision)
+    pipeline = SubgoalPipeline(maps or KinematicMaps.load_or_build(), camera, max_depth, config=pipeline_config,
+                               seed=seed, timings=timings, collision=collision)
     return SubgoalPolicy(make_strategy(strategy, pipeline, behaviour_config, strategy_config), config)
