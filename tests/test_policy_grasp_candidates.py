@@ -56,8 +56,8 @@ def test_small_ball_on_a_table_is_grasped_nearer_the_fingertips() -> None:
 
 
 def test_low_brick_gets_top_down_grasps_along_its_axes() -> None:
-    """A 6.4 x 3.2 x 2 cm brick on a table, turned 0.5 rad (static s0009's
-    Lego): the top-down family closes across its short and its long side,
+    """A 6.4 x 3.2 x 2 cm brick on a table, turned 0.5 rad (a Lego
+    brick): the top-down family closes across its short and its long side,
     fingertips above the table, where the antipodal pairs alone find few."""
     z_table = 0.94
     center = np.array([0.0, 0.0, z_table + 0.01])
@@ -92,8 +92,8 @@ def _pad_coverage(X_WG: np.ndarray, center: np.ndarray, yaw: float, half: float)
 
 def test_no_grasp_holds_a_cube_with_half_a_pad() -> None:
     """Grasps on a 5.7 cm cube keep most of each pad's width over the cube
-    (static s0003: the pads' middle 2.9 cm off the cube's centre, on its edge,
-    closed on air); without the pad-balance test some grasps hang over the edge."""
+    (with the pads' middle 2.9 cm off the cube's centre, on its edge, they
+    close on air); without the pad-balance test some grasps hang over the edge."""
     yaw, half = 0.3, 0.0285
     cube = clouds.box_cloud(center=CENTER, size=(2 * half,) * 3, yaw=yaw, n=3000, noise=0.0005, seed=5)
     center = CENTER + np.array([0.0, 0.0, half])

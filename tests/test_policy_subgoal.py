@@ -214,7 +214,7 @@ def test_pregrasp_accept_prefers_but_does_not_require(pipeline, scene) -> None:
 
 def test_support_surface_does_not_hide_a_small_target_but_a_wall_does(pipeline) -> None:
     # A 2 cm brick on a 0.94 m counter, seen from 1.2 m away at a low angle
-    # (static s0009): the counter top lies just below the line of sight.
+    # the counter top lies just below the line of sight.
     counter = clouds.box_surface_cloud([0.6, -0.6, 0.0], [1.2, 0.6, 0.94], spacing=0.03)
     target = np.array([0.9, 0.0, 0.946])
     q = layout.stow_configuration(-0.3, 0.0, 0.0)
@@ -229,7 +229,7 @@ def test_support_surface_does_not_hide_a_small_target_but_a_wall_does(pipeline) 
 
 
 def test_low_brick_on_a_counter_is_grasped_from_its_pregrasp(pipeline) -> None:
-    # static s0009: a 2 cm Lego brick on a 0.94 m counter. The collision
+    # A 2 cm Lego brick on a 0.94 m counter. The collision
     # model's finger spheres reach 1 cm past the fingertips into the counter;
     # at the grasp and on the approach the grasp source's finer gripper check
     # decides (`collision_fn(..., grasp=True)`), not the spheres.
@@ -255,8 +255,8 @@ def test_low_brick_on_a_counter_is_grasped_from_its_pregrasp(pipeline) -> None:
 def test_pregrasp_proposal_is_the_pregrasp_of_its_accepted_grasp(scene) -> None:
     """The arm goes to the pre-grasp pose of the grasp the proposal was accepted
     for, so the grasp stage's move to its pre-grasp starts where it ends
-    (static s0014: from another candidate's pre-grasp the arm reconfigured next
-    to the soup can and swept it over). Off, the grasp stage's grasp is not the
+    (from another candidate's pre-grasp the arm can reconfigure next to the
+    target and sweep it over). Off, the grasp stage's grasp is not the
     one the arm was drawn for."""
     points, target = scene
     dense = points[np.linalg.norm(points - target, axis=1) < 0.3]
