@@ -140,3 +140,25 @@ def test_start_inside_the_self_collision_padding_plans():
     overlapping = Q[~bare.is_free(Q) & layout.within_limits(Q)]
     r = planner.plan(overlapping[0], layout.stow_configuration(2.0, 0.0, 0.0))
     assert r.reason == FailureReason.START_IN_COLLISION
+
+
+def test_base_extra_padding_inflates_only_the_base_spheres_and_only_while_planning():
+    """A base pose 3 cm from a low wall is free at the default padding and
+    rejected with 4 cm of base padding; the arm's spheres and the unpadded test
+    (whether a configuration penetrates) are unchanged."""
+    plain = WholeBodyPlanner.for_fetch(CollisionEnvironment(), CONFIG)
+    wide = WholeBodyPlanner.for_fetch(CollisionEnvironment(), PlannerConfig(attempt_wall_limit_s=5.0,
+                                                                            base_extra_padding=0.04))
+    is_base = wide.checker.is_base
+    assert is_base.any() and not is_base.all()
+    np.testing.assert_allclose(wide.checker.sph_r - plain.checker.sph_r, 0.04 * is_base)
+    np.testing.assert_allclose(wide.checker.unpadded().sph_r, plain.checker.unpadded().sph_r)
+    # A low wall (0.3 m, below the stowed arm) 3 cm in front of the base's spheres.
+    bare = plain.checker.unpadded()
+    c = bare.sphere_centers(Q_START[None])[0]
+    x_face = float(np.max(c[is_base, 0] + bare.sph_r[is_base])) + 0.03
+    low_wall = WorldBox("wall/low", np.array([x_face + 0.05, 0.0, 0.15]), np.eye(3), np.array([0.05, 1.5, 0.15]))
+    env = CollisionEnvironment.from_primitives([low_wall])
+    assert plain.checker.with_environment(env).is_free(Q_START[None])[0]
+    assert not wide.checker.with_environment(env).is_free(Q_START[None])[0]
+    assert wide.checker.with_environment(env).unpadded().is_free(Q_START[None])[0]

@@ -92,6 +92,12 @@ class CollisionCheckerConfig:
             1.5 cm default is the closed loop's margin: tracking the path
             deviates by up to ~1 cm in the arm, and the simulated Fetch
             touched its own base with no margin (the stow pose keeps 2 cm).
+        base_extra_padding: further inflation [m] of the base's spheres
+            against the environment while planning (not in the `unpadded`
+            test of whether a configuration penetrates). The differential-
+            drive base follows a curved path with a lateral error of a few
+            centimetres, more than the arm's, so a base path planned at the
+            motion-resolution padding from an obstacle can touch it.
     """
 
     motion_resolution: float = 0.03
@@ -99,6 +105,7 @@ class CollisionCheckerConfig:
     head_pan: float = 0.0
     head_tilt: float = 0.0
     self_padding: float = 0.015
+    base_extra_padding: float = 0.0
 
 
 class SphereCollisionChecker:
@@ -114,11 +121,14 @@ class SphereCollisionChecker:
             against their spheres for self-collision.
         prune_self_tests: drop the self-collision tests that can never fail
             inside the joint limits (`unreachable_self_pairs`).
+        is_gripper: (S,) the gripper's spheres (see `SphereModel.is_gripper`).
+        is_base: (S,) the base's spheres (inflated by `base_extra_padding`).
     """
 
     def __init__(self, tree, link_index, center_L, radius, self_collision_pairs,
                  env: CollisionEnvironment, config: CollisionCheckerConfig | None = None,
-                 body_primitives=(), prune_self_tests: bool = True, is_gripper: np.ndarray | None = None):
+                 body_primitives=(), prune_self_tests: bool = True, is_gripper: np.ndarray | None = None,
+                 is_base: np.ndarray | None = None):
         self.tree = tree
         config = config or CollisionCheckerConfig()
         self.config = config
@@ -127,7 +137,9 @@ class SphereCollisionChecker:
         self.base_radius = np.ascontiguousarray(radius, dtype=float)
         self.pairs = np.ascontiguousarray(np.asarray(self_collision_pairs, dtype=np.int64).reshape(-1, 2))
         self.padding = 0.5 * config.motion_resolution + config.extra_padding
-        self.sph_r = self.base_radius + self.padding
+        self.is_base = (np.zeros(self.sph_link.shape[0], dtype=np.bool_) if is_base is None
+                        else np.ascontiguousarray(is_base, dtype=np.bool_).reshape(self.sph_link.shape[0]))
+        self.sph_r = self.base_radius + self.padding + config.base_extra_padding * self.is_base
         self.sph_rs = self.base_radius + config.self_padding
         self.head = np.array([config.head_pan, config.head_tilt], dtype=float)
         self.q_lo = np.ascontiguousarray(layout.Q_LOWER, dtype=float)
@@ -160,7 +172,8 @@ class SphereCollisionChecker:
         tree = FetchKinematics.instance().tree
         return SphereCollisionChecker(tree, spheres.link_index, spheres.center_L, spheres.radius,
                                 spheres.self_collision_pairs, env, config,
-                                body_primitives=spheres.body_primitives, is_gripper=spheres.is_gripper)
+                                body_primitives=spheres.body_primitives, is_gripper=spheres.is_gripper,
+                                is_base=np.array([spheres.link_names[i] == "base_link" for i in spheres.link_index]))
 
     @staticmethod
     def _body_arrays(prims):

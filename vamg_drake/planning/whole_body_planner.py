@@ -117,6 +117,8 @@ class PlannerConfig:
         costmap_resolution: cell size of the base's 2D clearance map [m].
         motion_resolution: max sphere displacement between checked states [m].
         extra_padding: extra sphere inflation [m].
+        base_extra_padding: further inflation of the base's spheres while
+            planning [m] (`CollisionCheckerConfig.base_extra_padding`).
         base_shortcut_iterations: Reeds-Shepp shortcut tries on the base path.
         arm_shortcut_iterations: shortcut tries on each fixed-base arm path.
         along_path_shortcut_iterations: shortcut tries on an arm path found
@@ -158,6 +160,7 @@ class PlannerConfig:
     costmap_resolution: float = 0.025
     motion_resolution: float = 0.03
     extra_padding: float = 0.0
+    base_extra_padding: float = 0.0
     base_shortcut_iterations: int = 15
     arm_shortcut_iterations: int = 25
     along_path_shortcut_iterations: int = 6
@@ -177,7 +180,8 @@ class PlannerConfig:
     def checker_config(self) -> CollisionCheckerConfig:
         """The sphere collision checker's parameters (its padding) of this
         planner; the subgoal samplers check their goals with the same."""
-        return CollisionCheckerConfig(motion_resolution=self.motion_resolution, extra_padding=self.extra_padding)
+        return CollisionCheckerConfig(motion_resolution=self.motion_resolution, extra_padding=self.extra_padding,
+                                      base_extra_padding=self.base_extra_padding)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
