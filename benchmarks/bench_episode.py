@@ -25,7 +25,9 @@ per scenario, `real_time_factor_median` over all runs, the per-module wall
 time medians over all runs (each run's median call, from `timings`), and
 `planner_wall_limit_hits`: attempts the planner's wall-clock safety net
 stopped (nonzero: those episodes depend on the machine by construction).
-An untimed warm-up episode (the demo, 2 s) first loads numba's caches.
+An untimed warm-up episode (the demo, 2 s) first loads numba's caches (of the
+reference tree too: they are per source tree, and compiling would count as
+the reference's episode time).
 
 With --json the last line is one JSON object of the metrics.
 """
@@ -112,6 +114,8 @@ def main() -> None:
     config = DiagramConfig(seed=args.seed)
     if not args.no_warm_up:
         run_episode(dc.replace(scenarios[0], time_limit=2.0), config, record=False, progress=False)
+        if args.reference is not None:  # numba's caches are per source tree: warm the reference's too
+            reference_episode(args.reference.resolve(), dc.replace(scenarios[0], time_limit=2.0), args.seed)
 
     runs, per_scenario = [], {}
     for scenario in scenarios:
