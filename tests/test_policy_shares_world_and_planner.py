@@ -36,7 +36,9 @@ def test_the_pipeline_checks_with_the_given_camera_and_padding() -> None:
     assert default.collision == PlannerConfig().checker_config()
 
 
-def test_the_diagram_gives_the_policy_the_world_camera_and_the_planner_padding(monkeypatch) -> None:
+@pytest.fixture
+def built_pipelines(monkeypatch) -> list[SubgoalPipeline]:
+    """The subgoal pipelines the diagram builds from here on."""
     built = []
 
     class Recording(SubgoalPipeline):
@@ -45,31 +47,27 @@ def test_the_diagram_gives_the_policy_the_world_camera_and_the_planner_padding(m
             built.append(self)
 
     monkeypatch.setattr(subgoal_policy_system, "SubgoalPipeline", Recording)
+    return built
+
+
+def test_the_diagram_gives_the_policy_the_world_camera_and_the_planner_padding(built_pipelines) -> None:
     config = DiagramConfig()
     config.world.camera = HeadCameraConfig(width=160, height=120)
     config.planner.planner.extra_padding = 0.01
     ed = build_diagram(box_room_scenario(), config)
-    (pipeline,) = built
+    (pipeline,) = built_pipelines
     assert dc.asdict(pipeline.visibility.camera) == dc.asdict(config.world.camera)
     assert pipeline.visibility.intrinsics == ed.world.intrinsics
     assert pipeline.collision == config.planner.planner.checker_config()
     assert pipeline.collision == ed.planner.planner.checker.config
 
 
-def test_the_policy_sees_the_target_only_within_the_map_range(monkeypatch) -> None:
-    built = []
-
-    class Recording(SubgoalPipeline):
-        def __init__(self, maps, camera, max_depth, **kwargs) -> None:
-            super().__init__(maps, camera, max_depth, **kwargs)
-            built.append(self)
-
-    monkeypatch.setattr(subgoal_policy_system, "SubgoalPipeline", Recording)
+def test_the_policy_sees_the_target_only_within_the_map_range(built_pipelines) -> None:
     config = DiagramConfig()
     config.map.depth.depth_max = 2.2
     assert config.map.depth.depth_max != DepthToPointsConfig().depth_max
     build_diagram(box_room_scenario(), config)
-    (pipeline,) = built
+    (pipeline,) = built_pipelines
     vis = pipeline.visibility
     assert vis.max_depth == config.map.depth.depth_max
     assert pipeline.pregrasp.visibility is vis and pipeline.observe.visibility is vis
