@@ -3,8 +3,9 @@
 The policy sends a `SubgoalCommand` (a goal, its motion kind and the policy's
 `Phase`); the motion layer answers with a `PlannedTrajectory` (what it
 executes, and why a plan failed; the tracker and the gaze follow its
-trajectory) and a `MotionFeedback` (a `MotionEvent` about the goal). Both sides, and the systems that watch them (the episode
-monitor, the tracker, the gaze), import the types from here, below both.
+trajectory) and a `MotionFeedback` (a `MotionEvent` about the goal). Both
+sides, and the systems that watch them (the episode monitor, the tracker,
+the gaze), import the types from here, below both.
 """
 
 import dataclasses as dc
