@@ -16,6 +16,7 @@ from vamg_drake.perception.raycast_map import PointMapSnapshot
 from vamg_drake.perception.seen_space import (LookGateConfig, _within_radius_of_path, SeenGrid, SeenSpaceConfig, unseen_footprint,
                                               with_hidden_cells)
 from vamg_drake.perception.trajectory_sweep import TrajectorySweep
+from vamg_drake.planning.motion_messages import PlannedTrajectory
 from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics, HeadCameraConfig
@@ -100,7 +101,7 @@ def _straight_trajectory() -> TimedTrajectory:
 def _tracker_after(grid: SeenGrid | None, look: LookGateConfig, t: float = 0.3):
     tracker = WholeBodyTracker(look=look)
     context = tracker.CreateDefaultContext()
-    tracker.GetInputPort("trajectory").FixValue(context, _straight_trajectory())
+    tracker.GetInputPort("trajectory").FixValue(context, PlannedTrajectory(trajectory=_straight_trajectory()))
     tracker.GetInputPort("robot_configuration").FixValue(context, layout.stow_configuration(0.0, 0.0, 0.0))
     if grid is not None:
         tracker.GetInputPort("seen_space").FixValue(context, grid)
@@ -159,7 +160,7 @@ def test_gaze_window_starts_at_the_trackers_progress_not_the_clock():
     context = system.CreateDefaultContext()
     context.SetTime(4.0)
     system.GetInputPort("robot_configuration").FixValue(context, q0)
-    system.GetInputPort("trajectory").FixValue(context, trajectory)
+    system.GetInputPort("trajectory").FixValue(context, PlannedTrajectory(trajectory=trajectory))
     system.GetInputPort("trajectory_time").FixValue(context, [0.0])
     simulator = Simulator(system, context)
     simulator.AdvanceTo(4.05)

@@ -7,6 +7,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.sensors import ImageDepth32F
 
 from vamg_drake.perception.shape_depth_render import ShapeDepthRenderer
+from vamg_drake.planning.motion_messages import PlannedTrajectory
 from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics, HeadCameraConfig
@@ -77,7 +78,7 @@ def test_gaze_system_follows_the_trajectory_then_the_target():
         times=np.array([0.0, 1.6, 4.6]) + 0.1,
         q=np.array([q0, layout.stow_configuration(0, 0, np.pi / 2), layout.stow_configuration(0, 3.0, np.pi / 2)]),
     )
-    system.GetInputPort("trajectory").FixValue(context, trajectory)
+    system.GetInputPort("trajectory").FixValue(context, PlannedTrajectory(trajectory=trajectory))
     simulator.AdvanceTo(0.15)
     pan, tilt = system.GetOutputPort("head_command").Eval(context)
     assert pan > 0.3

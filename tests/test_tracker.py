@@ -29,6 +29,7 @@ from vamg_drake.control.whole_body_tracker import (
     one_step_mpc_reference,
     state_error,
 )
+from vamg_drake.planning.motion_messages import PlannedTrajectory
 from vamg_drake.planning.smoothing import time_parametrize
 from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.robot import layout
@@ -428,7 +429,8 @@ def _tracker_context(trajectory, q):
     context = system.CreateDefaultContext()
     system.GetInputPort("robot_configuration").FixValue(context, q)
     if trajectory is not None:
-        system.GetInputPort("trajectory").FixValue(context, AbstractValue.Make(trajectory))
+        plan = trajectory if isinstance(trajectory, PlannedTrajectory) else PlannedTrajectory(trajectory=trajectory)
+        system.GetInputPort("trajectory").FixValue(context, AbstractValue.Make(plan))
     return system, context
 
 
@@ -448,8 +450,6 @@ def test_system_ports_and_zero_order_hold():
 
 
 def test_system_accepts_the_planners_planned_trajectory():
-    from vamg_drake.systems.planner_system import PlannedTrajectory
-
     tr = arc_reference(np.random.default_rng(0))
     system, context = _tracker_context(PlannedTrajectory(goal_id=1, trajectory=tr.shifted(3.0), success=True), tr.q[0])
     Simulator(system, context).AdvanceTo(0.01)
@@ -505,7 +505,7 @@ def test_tracker_drives_the_simulated_robot_along_a_curved_path():
     builder.Connect(command.GetOutputPort("desired_state"), plant.get_desired_state_input_port(world.robot))
     builder.Connect(robot_state.GetOutputPort("configuration"), command.GetInputPort("measured_configuration"))
     tracker = builder.AddSystem(WholeBodyTracker())
-    source = builder.AddSystem(ConstantValueSource(AbstractValue.Make(tr)))
+    source = builder.AddSystem(ConstantValueSource(AbstractValue.Make(PlannedTrajectory(trajectory=tr))))
     builder.Connect(source.get_output_port(), tracker.GetInputPort("trajectory"))
     builder.Connect(split.get_output_port(0), tracker.GetInputPort("robot_configuration"))
     for port in ("base_velocity", "joint_velocity"):

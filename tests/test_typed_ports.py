@@ -4,14 +4,11 @@ planner's `PlannedTrajectory`, which says "hold still" with its own field."""
 
 from __future__ import annotations
 
-import numpy as np
 from pydrake.systems.framework import PortDataType
 
 from scenes import box_room_scenario
 from vamg_drake.diagram import build_diagram
-from vamg_drake.planning.motion_messages import PlannedTrajectory, followed_trajectory
-from vamg_drake.planning.trajectory import TimedTrajectory
-from vamg_drake.robot import layout
+from vamg_drake.planning.motion_messages import PlannedTrajectory
 
 
 def test_no_abstract_port_of_the_episode_diagram_has_a_none_model() -> None:
@@ -27,11 +24,3 @@ def test_no_abstract_port_of_the_episode_diagram_has_a_none_model() -> None:
     for system, port in ((ed.tracker, "trajectory"), (ed.gaze, "trajectory")):
         assert isinstance(system.GetInputPort(port).Allocate().get_value(), PlannedTrajectory)
 
-
-def test_the_followed_trajectory_of_a_port_value() -> None:
-    q = np.array([layout.stow_configuration(0, 0, 0), layout.stow_configuration(1, 0, 0)])
-    trajectory = TimedTrajectory(times=np.array([0.0, 1.0]), q=q)
-    assert followed_trajectory(PlannedTrajectory(goal_id=1, trajectory=trajectory, success=True)) is trajectory
-    assert followed_trajectory(PlannedTrajectory()) is None
-    assert followed_trajectory(trajectory) is trajectory
-    assert followed_trajectory(None) is None

@@ -143,11 +143,3 @@ class PlannedTrajectory:
     retreat: bool = False
     approach_index: int = -1
 
-
-def followed_trajectory(value: "PlannedTrajectory | TimedTrajectory | None") -> TimedTrajectory | None:
-    """The trajectory to follow in the value of a ``trajectory`` input port (the
-    tracker's, the gaze's): a `PlannedTrajectory`'s (None: hold still), or a
-    bare `TimedTrajectory` given directly (tests, hand-built diagrams)."""
-    if isinstance(value, PlannedTrajectory):
-        return value.trajectory
-    return value

@@ -12,7 +12,7 @@ from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem, Valu
 
 from vamg_drake.perception.gaze import FetchGazeCameras, GazeConfig, GazeOptimizer as GazeOptimizerCore, decide_fetch_gaze
 from vamg_drake.perception.trajectory_sweep import TrajectorySweep
-from vamg_drake.planning.motion_messages import PlannedTrajectory, followed_trajectory
+from vamg_drake.planning.motion_messages import PlannedTrajectory
 from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics
 from vamg_drake.systems.timing import ModuleTimings
@@ -34,8 +34,7 @@ class GazeOptimizer(LeafSystem):
 
         name: GazeOptimizer
         input_ports:
-        - trajectory (PlannedTrajectory, without a trajectory while planning;
-          a bare TimedTrajectory is accepted too)
+        - trajectory (PlannedTrajectory, without a trajectory while planning)
         - trajectory_time (1-vector, optional: progress on the trajectory's clock)
         - target (3-vector p_WT, optional; NaN = no target)
         - robot_configuration (11-vector q)
@@ -85,8 +84,8 @@ class GazeOptimizer(LeafSystem):
         return self._core
 
     def _calc_sweep(self, context, value: AbstractValue) -> None:
-        value_in = self._trajectory_port.Eval(context) if self._trajectory_port.HasValue(context) else None
-        trajectory = followed_trajectory(value_in)
+        plan = self._trajectory_port.Eval(context) if self._trajectory_port.HasValue(context) else None
+        trajectory = plan.trajectory if plan is not None else None
         sweep = None
         if trajectory is not None and trajectory.num_waypoints >= 2:
             dt = self._core.config.waypoint_dt

@@ -11,7 +11,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 
 from vamg_drake.control.whole_body_tracker import TrackerCommand, TrackerConfig, TrackerStatus, WholeBodyTrackerCore
 from vamg_drake.perception.seen_space import LookGateConfig, SeenGrid, unseen_footprint
-from vamg_drake.planning.motion_messages import PlannedTrajectory, followed_trajectory
+from vamg_drake.planning.motion_messages import PlannedTrajectory
 from vamg_drake.robot import layout
 from vamg_drake.systems.robot_command import BASE_VELOCITY_SIZE, JOINT_VELOCITY_SIZE
 
@@ -55,7 +55,7 @@ class WholeBodyTracker(LeafSystem):
 
         name: WholeBodyTracker
         input_ports:
-        - trajectory (PlannedTrajectory; a bare TimedTrajectory is accepted too)
+        - trajectory (PlannedTrajectory; its trajectory None: hold still)
         - robot_configuration (11-vector q)
         - seen_space (SeenGrid, optional)
         output_ports:
@@ -139,8 +139,8 @@ class WholeBodyTracker(LeafSystem):
 
     def _update(self, context, state) -> EventStatus:
         q = np.asarray(self._q_port.Eval(context), dtype=float)
-        value = self._trajectory_port.Eval(context) if self._trajectory_port.HasValue(context) else None
-        trajectory = followed_trajectory(value)
+        plan = self._trajectory_port.Eval(context) if self._trajectory_port.HasValue(context) else None
+        trajectory = plan.trajectory if plan is not None else None
         gate = context.get_abstract_state(self._gate_index).get_value()
         memory: TrackerMemory = state.get_mutable_abstract_state(self._memory_index).get_mutable_value()
         if trajectory is not memory.loaded:
