@@ -2,6 +2,7 @@
 the planner), the tracker's rule that the base does not enter unseen cells,
 the gaze's look at them, and the gaze window on the tracker's progress."""
 
+import copy
 import dataclasses as dc
 
 import numpy as np
@@ -41,8 +42,7 @@ def _X_WC_down_forward(p_WC, pitch: float) -> np.ndarray:
 
 def _grid(seen_at: float = np.inf) -> SeenGrid:
     grid = SeenGrid.around(np.zeros(2), SeenSpaceConfig(half_extent=4.0))
-    grid.first_seen[:] = seen_at
-    return grid
+    return dc.replace(grid, first_seen=np.full(grid.shape, seen_at))
 
 
 def test_cells_are_seen_where_the_ray_reaches_them_and_not_behind_a_surface():
@@ -221,3 +221,10 @@ def test_footprint_radius_kernel_gives_the_array_expressions_verdicts():
         r = float(rng.uniform(0.05, 0.5))
         expected = ((xy[:, None, :] - section[None, :, :]) ** 2).sum(axis=2).min(axis=1) <= r * r
         assert np.array_equal(_within_radius_of_path(xy, section, r * r), expected)
+
+
+def test_seen_grid_is_immutable_and_shared_by_context_copies():
+    grid = _grid()
+    assert copy.deepcopy(grid) is grid
+    with pytest.raises(ValueError):
+        grid.first_seen[0, 0] = 0.0

@@ -11,6 +11,7 @@ farther than `crop_radius` from the camera centre.
 
 
 import dataclasses as dc
+import math
 
 import numba
 import numpy as np
@@ -124,3 +125,17 @@ def _back_project(depth, ray_x, ray_y, X_WC, depth_min, depth_max, crop_radius):
                 out[n, k] = X_WC[k, 0] * x + X_WC[k, 1] * y + X_WC[k, 2] * z + X_WC[k, 3]
             n += 1
     return out[:n].copy()
+
+
+@numba.njit(cache=True)
+def within_distance(points, center, radius):
+    """(N,) bool: whether |p - center| <= radius for each point (N, 3), with the
+    distance rounded as `np.linalg.norm(points - center, axis=1)` rounds it."""
+    n = points.shape[0]
+    out = np.empty(n, dtype=np.bool_)
+    for i in range(n):
+        dx = points[i, 0] - center[0]
+        dy = points[i, 1] - center[1]
+        dz = points[i, 2] - center[2]
+        out[i] = math.sqrt(dx * dx + dy * dy + dz * dz) <= radius
+    return out

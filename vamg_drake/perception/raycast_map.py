@@ -142,6 +142,9 @@ class PointMapSnapshot:
         keys.flags.writeable = False
         return PointMapSnapshot(points, keys, voxel_size, 0)
 
+    def __deepcopy__(self, memo) -> "PointMapSnapshot":
+        return self  # immutable: the Context's copies of the map state share it
+
     @property
     def num_points(self) -> int:
         return int(self.points.shape[0])

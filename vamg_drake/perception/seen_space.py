@@ -147,6 +147,14 @@ class SeenGrid:
     hidden: np.ndarray | None = None  # (nx, ny) bool; None = none hidden
     hidden_revision: int = 0
 
+    def __post_init__(self):
+        self.first_seen.flags.writeable = False
+        if self.hidden is not None:
+            self.hidden.flags.writeable = False
+
+    def __deepcopy__(self, memo) -> "SeenGrid":
+        return self  # immutable (`observe` returns a new grid): the Context's copies share it
+
     @staticmethod
     def around(center_xy: np.ndarray, config: SeenSpaceConfig | None = None) -> "SeenGrid":
         """An all-unseen grid centred on `center_xy`."""

@@ -170,13 +170,33 @@ def edt_3d(occupied: np.ndarray, h: float) -> np.ndarray:
     occupied. Exact (separable squared-distance transform, one pass per axis),
     O(cells), no index arrays: 5.7x faster than SciPy's
     `distance_transform_edt` on 6M-cell room grids, with the same float32
-    distances (as measured by benchmarks/bench_motion_layer.py on an idle machine)."""
-    g = np.where(np.asarray(occupied, dtype=bool), 0.0, np.inf)
+    distances (as measured by benchmarks/bench_motion_layer.py on an idle machine).
+    The first pass reads the occupancy and the last writes the metric distance,
+    so no whole-grid NumPy pass runs in between."""
+    occupied = np.ascontiguousarray(occupied, dtype=bool)
+    if occupied.ndim != 3:
+        raise ValueError(f"occupancy must be a 3D bool array, got shape {occupied.shape}")
+    g = np.empty(occupied.shape)
+    out = np.empty(occupied.shape, dtype=np.float32)
     m = max(g.shape)
-    scratch = (np.empty(m), np.empty(m), np.empty(m, dtype=np.int64), np.empty(m + 1))
-    for axes in ((0, 1, 2), (0, 2, 1), (1, 2, 0)):  # along z, then y, then x
-        _edt_lines(g.transpose(axes), *scratch)
-    return (np.sqrt(g) * h).astype(np.float32)
+    f, d, v, z = np.empty(m), np.empty(m), np.empty(m, dtype=np.int64), np.empty(m + 1)
+    _edt_first_lines(occupied, g, f, d, v, z)  # along z
+    _edt_lines(g.transpose((0, 2, 1)), f, d, v, z)  # along y
+    _edt_last_lines(g.transpose((1, 2, 0)), out.transpose((1, 2, 0)), float(h), f, d, v, z)  # along x
+    return out
+
+
+@numba.njit(cache=True)
+def _edt_first_lines(occ, g, f, d, v, z):
+    """Squared distance transform along the last axis of the bool grid occ into g."""
+    a, b, n = occ.shape
+    for i in range(a):
+        for j in range(b):
+            for k in range(n):
+                f[k] = 0.0 if occ[i, j, k] else np.inf
+            _edt_1d(f, n, d, v, z)
+            for k in range(n):
+                g[i, j, k] = d[k]
 
 
 @numba.njit(cache=True)
@@ -190,3 +210,16 @@ def _edt_lines(g, f, d, v, z):
             _edt_1d(f, n, d, v, z)
             for k in range(n):
                 g[i, j, k] = d[k]
+
+
+@numba.njit(cache=True)
+def _edt_last_lines(g, out, h, f, d, v, z):
+    """The last pass along the last axis of g, writing h sqrt(.) as float32 into out."""
+    a, b, n = g.shape
+    for i in range(a):
+        for j in range(b):
+            for k in range(n):
+                f[k] = g[i, j, k]
+            _edt_1d(f, n, d, v, z)
+            for k in range(n):
+                out[i, j, k] = np.float32(math.sqrt(d[k]) * h)

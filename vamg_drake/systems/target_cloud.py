@@ -19,7 +19,7 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import EventStatus, LeafSystem
 from pydrake.systems.sensors import ImageDepth32F
 
-from vamg_drake.perception.depth_points import DepthBackProjector, validate_pose
+from vamg_drake.perception.depth_points import DepthBackProjector, validate_pose, within_distance
 from vamg_drake.perception.raycast_map import inside_any_sphere, points_not_seen_through
 from vamg_drake.perception.voxels import first_in_voxel
 from vamg_drake.robot import layout
@@ -101,7 +101,7 @@ class TargetCloud(LeafSystem):
             p_WS = self._projector.points_W(depth, X_WC)
         except ValueError:
             return EventStatus.Succeeded()
-        new = p_WS[np.linalg.norm(p_WS - p_WT, axis=1) <= cfg.radius]
+        new = p_WS[within_distance(p_WS, p_WT, cfg.radius)]
         q = np.asarray(self._q_port.Eval(context), dtype=float)
         if new.shape[0] and np.all(np.isfinite(q)):
             new = new[~inside_any_sphere(new, self._spheres.world_spheres(q), self._spheres.radius + cfg.self_margin)]
