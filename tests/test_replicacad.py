@@ -259,3 +259,74 @@ def test_unknown_scene_and_dataset_are_named(tmp_path):
         load_replicacad_layout("no_such_scene")
     with pytest.raises(ReplicaCadError, match=str(tmp_path)):
         find_replicacad_dir(tmp_path)
+
+
+# ------------------------------------------------------------------ caches
+
+
+def test_layout_disk_cache_returns_the_same_layout_and_follows_the_dataset(tmp_path, monkeypatch):
+    import vamg_drake.world.replicacad as replicacad
+
+    monkeypatch.setenv("VAMG_CACHE", str(tmp_path / "cache"))
+    copy = _copy_dataset(tmp_path)
+    replicacad._load_cached.cache_clear()
+    built = load_replicacad_layout("v3_sc0_staging_00", copy)
+    stored = sorted((tmp_path / "cache").rglob("layouts/*.pickle"))
+    assert len(stored) == 1
+    replicacad._load_cached.cache_clear()  # as a new process would
+    cached = load_replicacad_layout("v3_sc0_staging_00", copy)
+    assert cached is not built
+    assert [b.name for b in cached.bodies] == [b.name for b in built.bodies]
+    assert all(np.array_equal(p, q) for a, b in zip(cached.bodies, built.bodies) for p, q in zip(a.pieces_B, b.pieces_B))
+    assert [r.id for r in cached.all_receptacles()] == [r.id for r in built.all_receptacles()]
+    # An edited dataset file is a new key: the layout is loaded again, not taken from the cache.
+    config = copy / "configs" / "objects" / "frl_apartment_table_01.object_config.json"
+    config.write_text(config.read_text() + "\n")
+    replicacad._load_cached.cache_clear()
+    load_replicacad_layout("v3_sc0_staging_00", copy)
+    assert len(sorted((tmp_path / "cache").rglob("layouts/*.pickle"))) == 2
+    # A corrupt cache file is rebuilt.
+    stored = sorted((tmp_path / "cache").rglob("layouts/*.pickle"))
+    for path in stored:
+        path.write_bytes(b"not a pickle")
+    replicacad._load_cached.cache_clear()
+    again = load_replicacad_layout("v3_sc0_staging_00", copy)
+    assert [b.name for b in again.bodies] == [b.name for b in built.bodies]
+    replicacad._load_cached.cache_clear()
+
+
+def test_depth_only_gltf_renders_the_same_depth_without_textures():
+    from pydrake.geometry import GeometryInstance, Mesh, PerceptionProperties, RenderLabel
+
+    from vamg_drake.world.replicacad import depth_only_gltf
+
+    layout = load_replicacad_layout("apt_0")
+    body = next(b for b in layout.bodies if b.visuals and "table" in b.name)
+    gltf, X_BG, scale = body.visuals[0]
+    stripped = depth_only_gltf(gltf)
+    doc, full = json.loads(stripped.read_text()), json.loads(gltf.read_text())
+    assert "images" in full and not {"images", "textures", "samplers"} & set(doc)
+    assert doc["buffers"] == full["buffers"] and doc["meshes"] == full["meshes"]
+    assert "Texture" not in json.dumps(doc.get("materials", []))
+
+    def render(path):
+        builder = DiagramBuilder()
+        plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.01), builder)
+        instance = GeometryInstance(RigidTransform(body.X_WB @ X_BG), Mesh(str(path), scale), "mesh")
+        perception = PerceptionProperties()
+        perception.AddProperty("label", "id", RenderLabel(1))
+        instance.set_perception_properties(perception)
+        plant.RegisterVisualGeometry(plant.world_body(), instance)
+        plant.Finalize()
+        scene_graph.AddRenderer("vtk", MakeRenderEngineVtk(RenderEngineVtkParams()))
+        context = builder.Build().CreateDefaultContext()
+        p_WB = body.X_WB[:3, 3]
+        X_WC = RigidTransform(RotationMatrix.MakeXRotation(np.pi), [p_WB[0], p_WB[1], p_WB[2] + 2.0])
+        core = RenderCameraCore("vtk", CameraInfo(64, 48, np.pi / 3), ClippingRange(0.05, 10.0), RigidTransform())
+        query = scene_graph.get_query_output_port().Eval(scene_graph.GetMyContextFromRoot(context))
+        return np.asarray(query.RenderDepthImage(DepthRenderCamera(core, DepthRange(0.1, 8.0)),
+                                                 scene_graph.world_frame_id(), X_WC).data).squeeze()
+
+    textured, depth_only = render(gltf), render(stripped)
+    assert np.isfinite(textured).sum() > 50  # the table is in view
+    np.testing.assert_array_equal(depth_only, textured)

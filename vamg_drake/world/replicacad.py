@@ -50,10 +50,12 @@ three render meshes.
 """
 
 import functools
+import hashlib
 import json
 import logging
 import math
 import os
+import pickle
 import re
 import struct
 import tempfile
@@ -335,6 +337,30 @@ def glb_to_gltf(glb: Path, cache_dir: Path, dataset_dir: Path) -> Path:
     if doc.get("buffers"):
         doc["buffers"][0]["uri"] = bin_name
         _write_atomic(out.with_suffix(".bin"), blob)
+    _write_atomic(out, json.dumps(doc).encode())
+    return out
+
+
+def depth_only_gltf(gltf: Path) -> Path:
+    """A copy of a cached ``.gltf`` without images, textures or samplers, for the
+    perception role (reused if fresh).
+
+    The depth camera needs only the triangles; the textures (PNGs inside the
+    ``.bin``) would be decoded by the renderer for nothing, which is most of
+    the renderer's set-up time in an apartment. The copy shares the ``.bin``.
+    """
+    out = gltf.with_name(gltf.stem + ".depth.gltf")
+    if out.exists() and out.stat().st_mtime >= gltf.stat().st_mtime:
+        return out
+    doc = json.loads(gltf.read_bytes())
+    for key in ("images", "textures", "samplers"):
+        doc.pop(key, None)
+    for material in doc.get("materials", []):
+        pbr = material.get("pbrMetallicRoughness", {})
+        for key in [k for k in pbr if k.endswith("Texture")]:
+            del pbr[key]
+        for key in [k for k in material if k.endswith("Texture")]:
+            del material[key]
     _write_atomic(out, json.dumps(doc).encode())
     return out
 
@@ -731,8 +757,50 @@ def _vertical_box(name: str, points_W: np.ndarray) -> WorldBox:
 
 @functools.lru_cache(maxsize=8)
 def _load_cached(dataset_dir: Path, scene: str, require_stage: bool, strict_assets: bool, config_key: str) -> ReplicaCadLayout:
+    """The layout from the disk cache when its key matches, else loaded and stored.
+
+    Loading an apartment (its meshes, navmesh walls and receptacles) takes
+    seconds, and every benchmark episode runs in a fresh process. The key
+    covers the arguments, this package's world-building sources, the mesh
+    reader's version and the size and mtime of every dataset file, so any
+    change to what the layout is made from loads it anew.
+    """
+    cache = replicacad_cache_dir(dataset_dir) / "layouts"
+    digest = _layout_key(dataset_dir, scene, require_stage, strict_assets, config_key)
+    path = cache / f"{scene}-{digest[:20]}.pickle"
+    if path.is_file():
+        try:
+            layout = pickle.loads(path.read_bytes())
+        except Exception as e:  # a corrupt or foreign file: rebuild it
+            _log.warning("%s: unreadable layout cache (%s); loading the scene again", path, e)
+        else:
+            if isinstance(layout, ReplicaCadLayout) and all(p.is_file() for p in _layout_files(layout)):
+                for message in layout.warnings:
+                    _log.info("%s (cached layout)", message)
+                return layout
     config = ReplicaCadConfig(**json.loads(config_key))
-    return _Loader(dataset_dir, scene, require_stage, strict_assets, config).load()
+    layout = _Loader(dataset_dir, scene, require_stage, strict_assets, config).load()
+    cache.mkdir(parents=True, exist_ok=True)
+    _write_atomic(path, pickle.dumps(layout, protocol=pickle.HIGHEST_PROTOCOL))
+    return layout
+
+
+def _layout_key(dataset_dir: Path, scene: str, require_stage: bool, strict_assets: bool, config_key: str) -> str:
+    h = hashlib.sha256(json.dumps([scene, require_stage, strict_assets, config_key, trimesh.__version__,
+                                   np.__version__]).encode())
+    for source in sorted(Path(__file__).parent.glob("*.py")):
+        h.update(source.name.encode() + source.read_bytes())
+    for path in sorted(dataset_dir.rglob("*")):
+        if path.is_file():
+            st = path.stat()
+            h.update(f"{path.relative_to(dataset_dir)}:{st.st_size}:{st.st_mtime_ns}".encode())
+    return h.hexdigest()
+
+
+def _layout_files(layout: ReplicaCadLayout) -> list[Path]:
+    """The converted meshes a layout refers to (in the asset cache)."""
+    files = [path for body in layout.bodies for path, _, _ in body.visuals]
+    return files + ([layout.stage_visual] if layout.stage_visual is not None else [])
 
 
 def load_replicacad_layout(
@@ -767,8 +835,8 @@ def register_replicacad(plant, instance, layout: ReplicaCadLayout, proximity, vi
                         anchored_owner: dict | None = None) -> dict[str, object]:
     """Adds a loaded layout's bodies (welded) to ``plant`` in model instance ``instance``.
 
-    Visual meshes get the illustration and perception roles (the depth camera
-    sees them), each convex piece a ``Convex`` collision geometry with a copy of
+    Visual meshes get the illustration role and, as a copy without textures
+    (`depth_only_gltf`), the perception role (the depth camera sees them), each convex piece a ``Convex`` collision geometry with a copy of
     ``proximity``. Bodies without a render mesh show their collision pieces.
     The navmesh walls are not added here (``add_scene`` adds them with the
     room's walls). Call before ``plant.Finalize()``. ``visuals=False`` adds
@@ -796,13 +864,18 @@ def register_replicacad(plant, instance, layout: ReplicaCadLayout, proximity, vi
         plant.WeldFrames(plant.world_frame(), body.body_frame(), RigidTransform(body_spec.X_WB))
         bodies[body_spec.name] = body
         for k, (path, X_BG, scale) in enumerate(body_spec.visuals if visuals else ()):
-            # The glTF's own materials and textures: no diffuse override.
-            instance_k = GeometryInstance(RigidTransform(X_BG), Mesh(str(path), scale), f"{body_spec.name}/visual_{k}")
-            instance_k.set_illustration_properties(IllustrationProperties())
+            # Illustration: the glTF's own materials and textures (no diffuse
+            # override). Perception (the depth camera): the same triangles
+            # without textures.
+            illustration = GeometryInstance(RigidTransform(X_BG), Mesh(str(path), scale), f"{body_spec.name}/visual_{k}")
+            illustration.set_illustration_properties(IllustrationProperties())
+            plant.RegisterVisualGeometry(body, illustration)
+            depth = GeometryInstance(RigidTransform(X_BG), Mesh(str(depth_only_gltf(path)), scale),
+                                     f"{body_spec.name}/depth_{k}")
             perception = PerceptionProperties()
             perception.AddProperty("label", "id", RenderLabel(int(body.index())))
-            instance_k.set_perception_properties(perception)
-            plant.RegisterVisualGeometry(body, instance_k)
+            depth.set_perception_properties(perception)
+            plant.RegisterVisualGeometry(body, depth)
         for k, points in enumerate(body_spec.pieces_B):
             shape = Convex(np.ascontiguousarray(points.T), f"{body_spec.name}/{k}")
             if visuals and not body_spec.visuals:
