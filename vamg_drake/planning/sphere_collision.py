@@ -195,6 +195,10 @@ class SphereCollisionChecker:
             self._field = (False, np.zeros((1, 1, 1), np.float32), np.zeros(3), 1.0, 0.0,
                            np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(1, np.int64))
         else:
+            reach = float(np.max(self.sph_r, initial=0.0)) + f.margin
+            if not reach < f.max_distance:
+                raise ValueError(f"a sphere radius plus the field's bound ({reach:.3f} m) reaches past the distances "
+                                 f"the field keeps ({f.max_distance:.3f} m, its pad): build the field with a larger pad")
             self._field = (True, f.dist, f.origin, f.resolution, f.margin, f.points, f.cell_keys, f.cell_start)
         self._field += (np.append(np.asarray(env.grasp_target, dtype=float), env.grasp_target_floor),
                         float(env.grasp_target_radius),
