@@ -197,8 +197,8 @@ def edt_3d(occupied: np.ndarray, h: float, max_distance: float = math.inf) -> np
     # Squared distances in cells; +inf keeps every one (the test is d > cut).
     cut = (max_distance / h) ** 2 if math.isfinite(max_distance) else math.inf
     _edt_first_lines(occupied, g, f, d, v, z, cut)  # along z
-    _edt_lines(g.transpose((0, 2, 1)), f, d, v, z, cut)  # along y
-    _edt_last_lines(g.transpose((1, 2, 0)), out.transpose((1, 2, 0)), float(h), f, d, v, z, cut)  # along x
+    _edt_lines(g.transpose((0, 2, 1)), out.transpose((0, 2, 1)), False, float(h), f, d, v, z, cut)  # along y
+    _edt_lines(g.transpose((1, 2, 0)), out.transpose((1, 2, 0)), True, float(h), f, d, v, z, cut)  # along x
     return out
 
 
@@ -217,9 +217,10 @@ def _edt_first_lines(occ, g, f, d, v, z, cut):
 
 
 @numba.njit(cache=True)
-def _edt_lines(g, f, d, v, z, cut):
-    """Squared distance transform along the last axis of g (3D), in place;
-    values above `cut` become +inf."""
+def _edt_lines(g, out, metric, h, f, d, v, z, cut):
+    """Squared distance transform along the last axis of g (3D); values above
+    `cut` become +inf. They go back into g, or with `metric` into out as the
+    float32 distance h sqrt(.) (the last pass)."""
     a, b, n = g.shape
     for i in range(a):
         for j in range(b):
@@ -227,28 +228,11 @@ def _edt_lines(g, f, d, v, z, cut):
             for k in range(n):
                 f[k] = g[i, j, k]
                 seen = seen or f[k] != np.inf
-            if not seen:
-                continue  # all +inf, and stays so
-            _edt_1d(f, n, d, v, z)
+            if seen:
+                _edt_1d(f, n, d, v, z)
             for k in range(n):
-                g[i, j, k] = d[k] if d[k] <= cut else np.inf
-
-
-@numba.njit(cache=True)
-def _edt_last_lines(g, out, h, f, d, v, z, cut):
-    """The last pass along the last axis of g, writing h sqrt(.) as float32
-    into out (+inf above `cut`)."""
-    a, b, n = g.shape
-    for i in range(a):
-        for j in range(b):
-            seen = False
-            for k in range(n):
-                f[k] = g[i, j, k]
-                seen = seen or f[k] != np.inf
-            if not seen:
-                for k in range(n):
-                    out[i, j, k] = np.float32(np.inf)
-                continue
-            _edt_1d(f, n, d, v, z)
-            for k in range(n):
-                out[i, j, k] = np.float32(math.sqrt(d[k]) * h) if d[k] <= cut else np.float32(np.inf)
+                inside = seen and d[k] <= cut
+                if metric:
+                    out[i, j, k] = np.float32(math.sqrt(d[k]) * h) if inside else np.float32(np.inf)
+                elif seen:  # an all-inf line stays so
+                    g[i, j, k] = d[k] if inside else np.inf
