@@ -63,6 +63,25 @@ def test_grasp_first_then_full_grasp_sequence() -> None:
     assert cmd.phase == Phase.SUCCEEDED and cmd.failure == FailureCategory.NONE
 
 
+@pytest.mark.parametrize("proposed, lifted", [(None, 0.15), (0.12, 0.12), (0.5, 0.15)])
+def test_the_lift_is_the_grasp_proposal_s_when_it_gives_one(proposed, lifted) -> None:
+    q = layout.stow_configuration(0, 0, 0)
+    q_grasp = q + 0.01
+
+    class OneGrasp:
+        def __call__(self, inputs: PolicyInputs) -> SubgoalProposal:
+            return SubgoalProposal(True, q, q_grasp, np.zeros(2), lift_height=proposed)
+
+    fail = ScriptedSampler("pregrasp", [False])
+    bt = Stepper(SubgoalBehaviour(SubgoalSamplers(OneGrasp(), fail, fail), BehaviourConfig(lift_height=0.15)))
+    cmd = bt.step(_inputs())
+    cmd = bt.step(_inputs(1.0, cmd.q_goal), MotionEvent.REACHED)
+    cmd = bt.step(_inputs(2.0, cmd.q_goal), MotionEvent.REACHED)
+    cmd = bt.step(_inputs(3.1, cmd.q_goal))
+    assert cmd.phase == Phase.GRASP_LIFT
+    assert cmd.q_goal[layout.TORSO] == pytest.approx(q_grasp[layout.TORSO] + lifted)
+
+
 def test_fallback_order_grasp_pregrasp_observe_fail() -> None:
     bt, s = _make([False], [False], [True])
     cmd = bt.step(_inputs())

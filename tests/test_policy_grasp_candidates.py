@@ -16,6 +16,7 @@ from vamg_drake.policy.grasp_ranking import (
     rank_grasps,
     select_grasp_goal,
 )
+from vamg_drake.robot import layout
 from vamg_drake.robot.layout import GRIPPER_MAX_OPENING
 
 TABLE_Z = 0.7
@@ -332,6 +333,53 @@ def test_approach_interpolants_are_checked() -> None:
     args = (np.zeros(11), np.eye(4), np.zeros(3), ik, blocked_mid_approach, None)
     assert select_grasp_goal(cands, *args, GraspRankingConfig()).candidate_index == 0
     assert select_grasp_goal(cands, *args, GraspRankingConfig(check_grasp_collision=True)).candidate_index == 1
+
+
+def test_lift_after_the_grasp_is_checked() -> None:
+    """A grasp whose torso lift rises into something overhanging is passed over
+    for one whose whole lift is free; a lift that is free only part of the way
+    is given that part when it is high enough, and refused when it is not."""
+    t = np.array([[0.5, 0.0, 0.8], [0.6, 0.1, 0.8]])
+    cands = GraspCandidates(_poses(t, np.zeros(2)), np.array([0.9, 0.8]), np.full(2, 0.05))
+
+    def ik(X_WG: np.ndarray, q_seed: np.ndarray):
+        q = np.zeros((len(X_WG), 11))
+        q[:, 3] = 0.1
+        q[:, 4:7] = X_WG[:, :3, 3]
+        return q, np.ones(len(X_WG), bool)
+
+    def overhang(above_0: float, above_1: float):
+        """Candidate 0's arm hits something above torso `above_0`, candidate 1's above `above_1`."""
+        def is_free(q: np.ndarray) -> np.ndarray:
+            limit = np.where(np.abs(q[:, 5]) < 0.01, above_0, above_1)
+            return q[:, 3] <= limit + 1e-9
+        return is_free
+
+    checked = GraspRankingConfig(check_grasp_collision=True)
+
+    def select(is_free, lift_height, config=checked):
+        return select_grasp_goal(cands, np.zeros(11), np.eye(4), np.zeros(3), ik, is_free, None, config,
+                                 lift_height=lift_height)
+
+    low_over_0 = overhang(0.2, 1.0)  # candidate 0 may rise 0.10 m, candidate 1 all the way
+    unchecked = select(low_over_0, 0.0)
+    assert unchecked.candidate_index == 0 and unchecked.lift_height is None  # no lift given: not checked
+    short = select(low_over_0, 0.06)
+    assert short.candidate_index == 0 and short.lift_height == pytest.approx(0.06)
+    full = select(low_over_0, 0.15)
+    assert full.candidate_index == 1 and full.lift_height == pytest.approx(0.15)
+    # Only part of the way for both: the first high enough gets its highest free height.
+    partial = select(overhang(0.1 + 0.125, 0.1 + 0.13), 0.15)
+    assert partial.candidate_index == 0 and partial.lift_height == pytest.approx(0.12)
+    assert not select(overhang(0.2, 0.2), 0.15).success  # 0.09 m for both: too low
+    assert select(low_over_0, 0.15, GraspRankingConfig(check_grasp_collision=True, lift_checks=0)).candidate_index == 0
+    # The lift the behaviour executes: the torso up, clamped at its limit, the arm as it was.
+    q = np.zeros(11)
+    q[3], q[4] = 0.3, 1.0
+    lifted = layout.raised_torso(q, 0.15)
+    assert lifted[3] == layout.Q_UPPER[3] and lifted[4] == 1.0 and q[3] == 0.3
+    with pytest.raises(ValueError, match="min_lift_height"):
+        GraspRankingConfig(min_lift_height=float("nan"))
 
 
 def test_verify_rechecks_earlier_grasps_on_a_new_cloud() -> None:

@@ -84,6 +84,8 @@ class SubgoalProposal:
         head: (2,) optional pan/tilt that looks at the target from q_goal.
         failure_reason: why not (empty on success).
         category: the failure category this failure points at.
+        lift_height: grasp stage only: how far to raise the torso after
+            closing [m] (None: `BehaviourConfig.lift_height`).
     """
 
     success: bool
@@ -92,6 +94,7 @@ class SubgoalProposal:
     head: np.ndarray | None = None
     failure_reason: str = ""
     category: FailureCategory = FailureCategory.NONE
+    lift_height: float | None = None
 
     @staticmethod
     def failure(reason: str, category: FailureCategory) -> "SubgoalProposal":
@@ -415,9 +418,8 @@ class SubgoalBehaviour:
     def _start_grasp(self, inputs: PolicyInputs, p: SubgoalProposal, reason: str) -> None:
         """Starts the grasp execution phases with a grasp proposal (GRASP_MOVE first)."""
         self._s.q_grasp = np.asarray(p.q_grasp, float)
-        self._s.q_lift = self._s.q_grasp.copy()
-        self._s.q_lift[layout.TORSO] = min(layout.Q_UPPER[layout.TORSO],
-                                           self._s.q_grasp[layout.TORSO] + self.config.lift_height)
+        lift = self.config.lift_height if p.lift_height is None else min(p.lift_height, self.config.lift_height)
+        self._s.q_lift = layout.raised_torso(self._s.q_grasp, lift)
         self._set_goal(inputs, Phase.GRASP_MOVE, p.q_goal, reason)
 
     def _on_reached(self, inputs: PolicyInputs) -> bool:

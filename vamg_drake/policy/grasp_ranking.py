@@ -43,6 +43,17 @@ class GraspRankingConfig:
     #: touch the target, so ``is_free`` must let the gripper near the target).
     check_grasp_collision: bool = False
     approach_checks: int = 3
+    #: With `check_grasp_collision`, also this many evenly spaced heights of
+    #: the lift after closing (the torso raised by up to the behaviour's
+    #: ``lift_height``): the arm above the gripper must not rise into what
+    #: overhangs the target (a TV above its stand, a shelf, a stool's seat).
+    #: A grasp lifts to its highest free height with every lower one free;
+    #: grasps whose full lift is free come first, and one whose free lift is
+    #: below `min_lift_height` is not chosen.
+    lift_checks: int = 5
+    #: The lowest lift a grasp may be given [m]: the episode's success lift
+    #: (0.10 m) plus room for the object to slip in the fingers.
+    min_lift_height: float = 0.12
     #: When the capability map calls no candidate reachable, try IK on the
     #: ranked candidates anyway (the map's bins are coarser than IK).
     ik_when_unreachable: bool = True
@@ -54,6 +65,11 @@ class GraspRankingConfig:
         """Raises ValueError naming the bad field."""
         if self.n_diverse < 1:
             raise ValueError(f"GraspRankingConfig.n_diverse must be >= 1, got {self.n_diverse}")
+        for name in ("approach_checks", "lift_checks"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"GraspRankingConfig.{name} must be >= 0, got {getattr(self, name)}")
+        if not (np.isfinite(self.min_lift_height) and self.min_lift_height >= 0.0):
+            raise ValueError(f"GraspRankingConfig.min_lift_height must be finite and >= 0, got {self.min_lift_height}")
 
 
 @dc.dataclass(frozen=True)
@@ -68,6 +84,8 @@ class GraspGoal:
         candidate_index: index into the input candidates (-1 on failure).
         num_candidates / num_reachable / num_tried: the funnel, for logs.
         failure_reason: empty on success.
+        lift_height: how far the torso may lift this grasp [m] (None: as far
+            as the behaviour lifts; the lift was not checked).
     """
 
     success: bool
@@ -79,6 +97,7 @@ class GraspGoal:
     num_reachable: int
     num_tried: int
     failure_reason: str = ""
+    lift_height: float | None = None
 
 
 def rotation_angle(R1: np.ndarray, R2: np.ndarray) -> np.ndarray:
@@ -179,12 +198,14 @@ def select_grasp_goal(
     reachable: ReachableFn | None,
     config: GraspRankingConfig | None = None,
     grasp_is_free: IsFreeFn | None = None,
+    lift_height: float = 0.0,
 ) -> GraspGoal:
     """The paper's grasp goal sampling: the first IK- and collision-valid ranked grasp.
 
     `is_free` checks the pre-grasps; `grasp_is_free` (default `is_free`) the
-    grasps and the approaches to them (`check_grasp_collision`), which a
-    grasp source may have checked for the gripper itself at finer resolution.
+    grasps, the approaches to them and the lifts after them (the torso raised
+    by up to `lift_height`; `check_grasp_collision`), which a grasp source may
+    have checked for the gripper itself at finer resolution.
     """
     config = config or GraspRankingConfig()
     grasp_is_free = grasp_is_free or is_free
@@ -219,10 +240,22 @@ def select_grasp_goal(
                 break
             q_mid = q_pre[check] + s * layout.wrap_configuration(q_grasp[check] - q_pre[check])
             free[check] &= np.asarray(grasp_is_free(q_mid), dtype=bool)
+    lift = np.full(order.size, np.nan)
+    if config.check_grasp_collision and lift_height > 0.0 and config.lift_checks:
+        lift[valid & free] = 0.0
+        for height in lift_height * np.arange(1, config.lift_checks + 1) / config.lift_checks:
+            check = valid & free & (lift >= height - lift_height / config.lift_checks - 1e-12)
+            if not check.any():
+                break
+            ok = np.asarray(grasp_is_free(layout.raised_torso(q_grasp[check], height)), dtype=bool)
+            lift[np.flatnonzero(check)[ok]] = height
+        free &= ~(lift < min(config.min_lift_height, lift_height) - 1e-12)
     winners = np.flatnonzero(valid & free)
     if winners.size == 0:
         return fail("every IK-valid ranked grasp is in collision with the map", n_reachable, order.size)
-    i = int(winners[0])
+    full = winners[~(lift[winners] < lift_height - 1e-12)]  # NaN (unchecked) counts as full
+    i = int(full[0] if full.size else winners[0])
     return GraspGoal(
-        True, q_grasp[i], q_pre[i], X_grasp[i], int(order[i]), len(candidates), n_reachable, i + 1
+        True, q_grasp[i], q_pre[i], X_grasp[i], int(order[i]), len(candidates), n_reachable, i + 1,
+        lift_height=None if np.isnan(lift[i]) else float(lift[i]),
     )

@@ -168,8 +168,11 @@ class SubgoalPipeline:
         seed: int = 0,
         timings=None,
         collision: CollisionCheckerConfig | None = None,
+        lift_height: float = 0.0,
     ) -> None:
         self.config = config or SubgoalPipelineConfig()
+        #: How far the behaviour lifts a closed grasp [m] (`BehaviourConfig.lift_height`): grasps whose lift hits the map are not chosen.
+        self.lift_height = float(lift_height)
         self.collision = collision or PlannerConfig().checker_config()
         #: Optional `vamg_drake.systems.timing.ModuleTimings` (grasp candidates, samplers).
         self.timings = timings
@@ -296,7 +299,7 @@ class SubgoalPipeline:
             category = FailureCategory.SUBGOAL if "collision" in goal.failure_reason else FailureCategory.REACHABILITY
             return SubgoalProposal.failure(goal.failure_reason, category)
         _, head = self.visibility.check(goal.q_pregrasp[None], p_WT)
-        return SubgoalProposal(True, goal.q_pregrasp, goal.q_grasp, head[0])
+        return SubgoalProposal(True, goal.q_pregrasp, goal.q_grasp, head[0], lift_height=goal.lift_height)
 
     def _matching_pose(self, X_WP: np.ndarray, X_WQ: np.ndarray) -> int | None:
         """The index of the pose in X_WP (K, 4, 4) nearest to X_WQ (`pose_distance`),
@@ -323,7 +326,7 @@ class SubgoalPipeline:
         return select_grasp_goal(
             candidates, q, X_WB, p_WE, self.ik.solve_arm, is_free or self.collision_fn(p_WM, p_WT, q),
             self.maps.capability.is_reachable if capability else None, self.config.ranking,
-            grasp_is_free or self.collision_fn(p_WM, p_WT, q, grasp=True),
+            grasp_is_free or self.collision_fn(p_WM, p_WT, q, grasp=True), self.lift_height,
         )
 
     def _grasp_candidates(self, inputs: PolicyInputs, p_WM: np.ndarray, p_WT: np.ndarray):

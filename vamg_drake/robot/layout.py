@@ -104,6 +104,14 @@ def within_limits(q: np.ndarray, tol: float = 1e-9) -> np.ndarray:
     return np.all((q >= Q_LOWER - tol) & (q <= Q_UPPER + tol), axis=-1)
 
 
+def raised_torso(q: np.ndarray, height: float) -> np.ndarray:
+    """q (..., 11) with the torso raised by `height` [m], clamped at its upper limit
+    (the grasp's lift: the arm keeps its joint angles)."""
+    q = np.array(q, dtype=float, copy=True)
+    q[..., TORSO] = np.minimum(Q_UPPER[TORSO], q[..., TORSO] + height)
+    return q
+
+
 def stow_configuration(x: float, y: float, theta: float) -> np.ndarray:
     """A whole-body configuration with the arm stowed at base pose (x, y, theta)."""
     return np.concatenate([[x, y, theta, TORSO_STOW], Q_ARM_STOW])

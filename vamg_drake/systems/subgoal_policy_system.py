@@ -171,5 +171,6 @@ def make_subgoal_policy(
     if strategy not in BEHAVIOURS:
         raise ValueError(f"make_subgoal_policy: unknown strategy '{strategy}' (known: {', '.join(BEHAVIOURS)})")
     pipeline = SubgoalPipeline(maps or KinematicMaps.load_or_build(), camera, max_depth, config=pipeline_config,
-                               seed=seed, timings=timings, collision=collision)
+                               seed=seed, timings=timings, collision=collision,
+                               lift_height=(behaviour_config or BehaviourConfig()).lift_height)
     return SubgoalPolicy(make_strategy(strategy, pipeline, behaviour_config, strategy_config), config)
