@@ -373,6 +373,15 @@ def test_lift_after_the_grasp_is_checked() -> None:
     assert partial.candidate_index == 0 and partial.lift_height == pytest.approx(0.12)
     assert not select(overhang(0.2, 0.2), 0.15).success  # 0.09 m for both: too low
     assert select(low_over_0, 0.15, GraspRankingConfig(check_grasp_collision=True, lift_checks=0)).candidate_index == 0
+    # A torso near its upper limit lifts only what is left: too little is refused.
+    def ik_high(X_WG: np.ndarray, q_seed: np.ndarray):
+        q, ok = ik(X_WG, q_seed)
+        q[:, 3] = layout.Q_UPPER[3] - 0.13 + 0.1 * (np.abs(q[:, 5]) < 0.01)  # candidate 0: 3 cm left, 1: 13 cm
+        return q, ok
+
+    high = select_grasp_goal(cands, np.zeros(11), np.eye(4), np.zeros(3), ik_high, overhang(1.0, 1.0), None, checked,
+                             lift_height=0.15)
+    assert high.candidate_index == 1 and high.lift_height == pytest.approx(0.13)
     # The lift the behaviour executes: the torso up, clamped at its limit, the arm as it was.
     q = np.zeros(11)
     q[3], q[4] = 0.3, 1.0

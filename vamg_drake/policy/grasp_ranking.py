@@ -249,6 +249,8 @@ def select_grasp_goal(
                 break
             ok = np.asarray(grasp_is_free(layout.raised_torso(q_grasp[check], height)), dtype=bool)
             lift[np.flatnonzero(check)[ok]] = height
+        # The torso stops at its upper limit: a grasp high up lifts only what is left.
+        lift = np.minimum(lift, layout.Q_UPPER[layout.TORSO] - q_grasp[:, layout.TORSO])
         free &= ~(lift < min(config.min_lift_height, lift_height) - 1e-12)
     winners = np.flatnonzero(valid & free)
     if winners.size == 0:
