@@ -867,15 +867,18 @@ def register_replicacad(plant, instance, layout: ReplicaCadLayout, proximity, vi
             # Illustration: the glTF's own materials and textures (no diffuse
             # override). Perception (the depth camera): the same triangles
             # without textures.
+            # The copy is anchored (on the world body, at the pose SceneGraph
+            # would compute for it), so neither SceneGraph nor the renderer
+            # updates its pose at every step.
             illustration = GeometryInstance(RigidTransform(X_BG), Mesh(str(path), scale), f"{body_spec.name}/visual_{k}")
             illustration.set_illustration_properties(IllustrationProperties())
             plant.RegisterVisualGeometry(body, illustration)
-            depth = GeometryInstance(RigidTransform(X_BG), Mesh(str(depth_only_gltf(path)), scale),
-                                     f"{body_spec.name}/depth_{k}")
+            X_WG = RigidTransform(body_spec.X_WB) @ RigidTransform(X_BG)
+            depth = GeometryInstance(X_WG, Mesh(str(depth_only_gltf(path)), scale), f"{body_spec.name}/depth_{k}")
             perception = PerceptionProperties()
             perception.AddProperty("label", "id", RenderLabel(int(body.index())))
             depth.set_perception_properties(perception)
-            plant.RegisterVisualGeometry(body, depth)
+            plant.RegisterVisualGeometry(plant.world_body(), depth)
         for k, points in enumerate(body_spec.pieces_B):
             shape = Convex(np.ascontiguousarray(points.T), f"{body_spec.name}/{k}")
             if visuals and not body_spec.visuals:
