@@ -835,8 +835,9 @@ def register_replicacad(plant, instance, layout: ReplicaCadLayout, proximity, vi
                         anchored_owner: dict | None = None) -> dict[str, object]:
     """Adds a loaded layout's bodies (welded) to ``plant`` in model instance ``instance``.
 
-    Visual meshes get the illustration role and, as a copy without textures
-    (`depth_only_gltf`), the perception role (the depth camera sees them), each convex piece a ``Convex`` collision geometry with a copy of
+    Visual meshes get the illustration role and, as an anchored copy without
+    textures (`depth_only_gltf`), the perception role (the depth camera sees
+    them); each convex piece is a ``Convex`` collision geometry with a copy of
     ``proximity``. Bodies without a render mesh show their collision pieces.
     The navmesh walls are not added here (``add_scene`` adds them with the
     room's walls). Call before ``plant.Finalize()``. ``visuals=False`` adds
