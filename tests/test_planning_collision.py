@@ -100,6 +100,16 @@ def test_empty_map_is_free():
     assert checker.is_free(layout.stow_configuration(0.0, 0.0, 0.0)[None])[0]
 
 
+def test_checker_refuses_a_field_that_keeps_too_short_distances():
+    """A field keeps distances up to its pad only; a sphere that reaches past
+    that could be called free next to an obstacle, so the checker refuses it."""
+    points = np.array([[1.0, 0.0, 0.5]])
+    checker = SphereCollisionChecker.for_fetch(CollisionEnvironment(field=DistanceField.from_points(points)))
+    assert checker.env.field.max_distance == 0.5
+    with pytest.raises(ValueError, match="pad"):
+        checker.set_environment(CollisionEnvironment(field=DistanceField.from_points(points, pad=0.2)))
+
+
 def test_edt_2d_matches_scipy():
     from scipy import ndimage
 

@@ -188,12 +188,12 @@ def edt_3d(occupied: np.ndarray, h: float, max_distance: float = math.inf) -> np
     occupied = np.ascontiguousarray(occupied, dtype=bool)
     if occupied.ndim != 3:
         raise ValueError(f"occupancy must be a 3D bool array, got shape {occupied.shape}")
+    if not max_distance > 0.0:
+        raise ValueError(f"edt_3d: max_distance must be positive, got {max_distance}")
     g = np.empty(occupied.shape)
     out = np.empty(occupied.shape, dtype=np.float32)
     m = max(g.shape)
     f, d, v, z = np.empty(m), np.empty(m), np.empty(m, dtype=np.int64), np.empty(m + 1)
-    if not max_distance > 0.0:
-        raise ValueError(f"edt_3d: max_distance must be positive, got {max_distance}")
     # Squared distances in cells; +inf keeps every one (the test is d > cut).
     cut = (max_distance / h) ** 2 if math.isfinite(max_distance) else math.inf
     _edt_first_lines(occupied, g, f, d, v, z, cut)  # along z
