@@ -144,14 +144,17 @@ def test_point_field_decides_the_shell_exactly():
     """A field built from points answers sphere tests exactly against the
     points (the shell D - sqrt(3) h <= r < D + sqrt(3) h is settled by the
     points, not counted as collision); one from bare occupancy stays
-    conservative."""
+    conservative, and so does the arm's test of the occupied cells (the
+    default) against the points'."""
     rng = np.random.default_rng(7)
     # A noisy table top at 0.75 m sampled like the map (one point per 3 cm voxel).
     xs, ys = np.meshgrid(np.arange(0.5, 1.5, 0.03), np.arange(-0.5, 0.5, 0.03))
     points = np.stack([xs.ravel(), ys.ravel(), np.full(xs.size, 0.75)], 1) + rng.uniform(-0.01, 0.01, (xs.size, 3))
     env = CollisionEnvironment.from_points(points, resolution=0.03)
     assert env.field.has_points
-    checker = SphereCollisionChecker.for_fetch(env, CollisionCheckerConfig(motion_resolution=0.0, self_padding=0.0))
+    checker = SphereCollisionChecker.for_fetch(env, CollisionCheckerConfig(motion_resolution=0.0, self_padding=0.0,
+                                                                           occupied_cells=False))
+    cells = SphereCollisionChecker.for_fetch(env, CollisionCheckerConfig(motion_resolution=0.0, self_padding=0.0))
     bare = SphereCollisionChecker.for_fetch(
         CollisionEnvironment.from_occupancy(env.field.occupancy, env.field.origin, 0.03),
         CollisionCheckerConfig(motion_resolution=0.0, self_padding=0.0))
@@ -168,6 +171,8 @@ def test_point_field_decides_the_shell_exactly():
     np.testing.assert_array_equal(got, truth)
     conservative = bare.is_free(Q)
     assert not np.any(conservative & ~truth)
+    by_cells = cells.is_free(Q)
+    assert not np.any(by_cells & ~truth) and np.any(truth & ~by_cells)
     # The exact test accepts configurations the bound rejected (the table-side
     # grasps the closed loop needs), and there are collisions among them.
     assert np.sum(got & ~conservative) >= 10

@@ -1,6 +1,8 @@
 """Starts and goals inside the collision padding (closed loop: tracking error,
 map points appearing near the robot) are planned from; penetrating ones fail."""
 
+import math
+
 import numpy as np
 import pytest
 
@@ -16,11 +18,12 @@ Q_GOAL = layout.stow_configuration(-2.5, 0.5, 0.0)
 
 
 def _front_of_robot(planner: WholeBodyPlanner, q: np.ndarray) -> float:
-    """The largest x reached by the robot's unpadded spheres at q (facing +x)."""
-    bare = planner.checker.unpadded()
-    c = bare.sphere_centers(q[None])[0]
-    keep = bare.check_env
-    return float(np.max(c[keep, 0] + bare.sph_r[keep]))
+    """The largest x reached by the robot's spheres (the sphere model's own
+    radii, no padding or margin) at q (facing +x)."""
+    checker = planner.checker
+    c = checker.sphere_centers(q[None])[0]
+    keep = checker.check_env
+    return float(np.max(c[keep, 0] + checker.base_radius[keep]))
 
 
 def _wall_at(x_face: float) -> WorldBox:
@@ -162,3 +165,38 @@ def test_base_extra_padding_inflates_only_the_base_spheres_and_only_while_planni
     assert plain.checker.with_environment(env).is_free(Q_START[None])[0]
     assert not wide.checker.with_environment(env).is_free(Q_START[None])[0]
     assert wide.checker.with_environment(env).unpadded().is_free(Q_START[None])[0]
+
+
+def test_the_arm_tests_occupied_cells_and_the_gripper_and_base_test_points():
+    """A map cell keeps one point of the surface crossing it; the surface may
+    be anywhere in the cell. An arm sphere 1 cm from a wall of points, inside
+    the cells that hold them, is free when it tests the points and in
+    collision when it tests the cells (the default)."""
+    from vamg_drake.planning.sphere_checks import TEST_CELLS, TEST_POINTS, TEST_TARGET_POINTS
+
+    cells = WholeBodyPlanner.for_fetch(CollisionEnvironment(), CONFIG).checker
+    points = WholeBodyPlanner.for_fetch(CollisionEnvironment(),
+                                        PlannerConfig(attempt_wall_limit_s=5.0, occupied_cells=False)).checker
+    test = cells.env_test
+    assert set(test[cells.is_gripper]) == {TEST_TARGET_POINTS}
+    assert set(test[cells.is_base]) == {TEST_POINTS}
+    assert set(test[~cells.is_gripper & ~cells.is_base]) == {TEST_CELLS}
+    assert set(points.env_test) == {TEST_POINTS, TEST_TARGET_POINTS}
+
+    h = 0.03
+    q = layout.stow_configuration(0.0, 0.0, 0.0)
+    c = cells.sphere_centers(q[None])[0]
+    r = cells.unpadded().sph_r
+    arm = (test == TEST_CELLS) & cells.check_env
+    front = int(np.argmax(np.where(arm, c[:, 0] + r, -np.inf)))
+    # Move the robot so that the sphere reaches 2 mm into a cell; the points
+    # lie 1 cm further, in the same cell.
+    dx = math.ceil((c[front, 0] + r[front]) / h) * h + 0.002 - (c[front, 0] + r[front])
+    q = layout.stow_configuration(dx, 0.0, 0.0)
+    c = cells.sphere_centers(q[None])[0]
+    x_points = c[front, 0] + r[front] + 0.01
+    ys, zs = np.meshgrid(np.arange(-0.06, 0.07, h) + c[front, 1], np.arange(-0.06, 0.07, h) + c[front, 2])
+    wall = np.stack([np.full(ys.size, x_points), ys.ravel(), zs.ravel()], axis=1)
+    env = CollisionEnvironment.from_points(wall, h)
+    assert points.with_environment(env).unpadded().is_free(q[None])[0]
+    assert not cells.with_environment(env).unpadded().is_free(q[None])[0]

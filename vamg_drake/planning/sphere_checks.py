@@ -59,6 +59,12 @@ def env_aabbs(box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, out):
     return out
 
 
+#: How a sphere tests a map (`SphereCollisionChecker.env_test`): against its
+#: points; against its occupied cells as solid boxes; against its points but
+#: those of the grasp target (the gripper).
+TEST_POINTS, TEST_CELLS, TEST_TARGET_POINTS = 0, 1, 2
+
+
 @numba.njit(cache=True)
 def _body_prim_d2(PW, k, kind, half, cx, cy, cz):
     """Squared distance from point (cx, cy, cz) to body primitive k (world pose PW[k])."""
@@ -86,7 +92,7 @@ def _env_free(C, data):
     env_aabb, near = data[4], data[5]
     sph_r = data[14]
     has_field, dist, origin, h, margin = data[19], data[20], data[21], data[22], data[23]
-    pts, cell_keys, cell_start, tgt_c, tgt_r, sph_grip = data[24], data[25], data[26], data[27], data[28], data[29]
+    pts, cell_keys, cell_start, tgt_c, tgt_r, sph_test = data[24], data[25], data[26], data[27], data[28], data[29]
     box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env = (data[30], data[31], data[32], data[33],
                                                                      data[34], data[35], data[36], data[37])
     S = C.shape[0]
@@ -113,14 +119,15 @@ def _env_free(C, data):
                     if pts.shape[0] == 0:
                         return False
                     # A gripper sphere near the grasp target ignores its points.
+                    test = sph_test[s]
                     exempt = False
-                    if sph_grip[s] and tgt_r > 0.0:
+                    if test == TEST_TARGET_POINTS and tgt_r > 0.0:
                         ex, ey, ez = cx - tgt_c[0], cy - tgt_c[1], cz - tgt_c[2]
                         exempt = ex * ex + ey * ey + ez * ez <= (tgt_r + r) ** 2
                     if not exempt and d + margin <= r:
                         return False
                     if _sphere_hits_points(cx, cy, cz, r, dist, origin, h, pts, cell_keys, cell_start,
-                                           exempt, tgt_c, tgt_r):
+                                           exempt, tgt_c, tgt_r, test == TEST_CELLS):
                         return False
     # Broad phase: primitives whose AABB overlaps the robot's.
     n_near = 0
@@ -285,7 +292,7 @@ def _config_free(Q, b, data):
 @numba.njit(cache=True)
 def batch_free(Q, head, parent, X_PJ, joint_type, axis, var_index,
                sph_link, sph_c, sph_r, sph_rs, pairs, q_lo, q_hi,
-               has_field, dist, origin, h, margin, pts, cell_keys, cell_start, tgt_c, tgt_r, sph_grip,
+               has_field, dist, origin, h, margin, pts, cell_keys, cell_start, tgt_c, tgt_r, sph_test,
                box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
                prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere, lb_c, lb_r, pair_end, bp_end,
                order, stop_at_first, out):
@@ -303,7 +310,7 @@ def batch_free(Q, head, parent, X_PJ, joint_type, axis, var_index,
     V = extended_scratch(Q.shape[1], head)
     data = (Q, T, C, PW, env_aabb, near, V, parent, X_PJ, joint_type, axis, var_index,
             sph_link, sph_c, sph_r, sph_rs, pairs, q_lo, q_hi,
-            has_field, dist, origin, h, margin, pts, cell_keys, cell_start, tgt_c, tgt_r, sph_grip,
+            has_field, dist, origin, h, margin, pts, cell_keys, cell_start, tgt_c, tgt_r, sph_test,
             box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
             prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere, lb_c, lb_r, pair_end, bp_end, LB)
     first = -1
@@ -389,10 +396,12 @@ def base_pose_free_exact(x, y, theta, data):
 
 
 @numba.njit(cache=True)
-def _sphere_hits_points(cx, cy, cz, r, dist, origin, h, pts, cell_keys, cell_start, exempt, tgt_c, tgt_r):
+def _sphere_hits_points(cx, cy, cz, r, dist, origin, h, pts, cell_keys, cell_start, exempt, tgt_c, tgt_r,
+                        cells=False):
     """Whether some obstacle point lies within r of (cx, cy, cz): the points of
     the occupied cells (dist == 0) that the sphere's bounding box overlaps,
-    except, when `exempt`, those within tgt_r of tgt_c[:3] and above tgt_c[3]."""
+    except, when `exempt`, those within tgt_r of tgt_c[:3] and above tgt_c[3];
+    with `cells`, whether an occupied cell's box does."""
     eps = 1e-9
     lo = np.empty(3, np.int64)
     hi = np.empty(3, np.int64)
@@ -416,6 +425,8 @@ def _sphere_hits_points(cx, cy, cz, r, dist, origin, h, pts, cell_keys, cell_sta
                 ez = max(abs(origin[2] + h * k - cz) - half, 0.0)
                 if exy + ez * ez > r2:
                     continue
+                if cells:
+                    return True
                 key = (i * ny + j) * nz + k
                 m = np.searchsorted(cell_keys, key)
                 if m >= cell_keys.shape[0] or cell_keys[m] != key:

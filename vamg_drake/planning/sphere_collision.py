@@ -24,7 +24,8 @@ import numpy as np
 
 from vamg_drake.planning.collision_environment import CollisionEnvironment
 from vamg_drake.planning.self_collision_pruning import reachable_self_tests
-from vamg_drake.planning.sphere_checks import batch_free, env_aabbs, held_poses_free, held_spheres
+from vamg_drake.planning.sphere_checks import (TEST_CELLS, TEST_POINTS, TEST_TARGET_POINTS, batch_free, env_aabbs,
+                                               held_poses_free, held_spheres)
 from vamg_drake.robot import kinematics, layout
 from vamg_drake.robot.kinematics import FetchKinematics
 from vamg_drake.robot.spheres import SphereModel, sphere_centres
@@ -98,6 +99,17 @@ class CollisionCheckerConfig:
             drive base follows a curved path with a lateral error of a few
             centimetres, more than the arm's, so a base path planned at the
             motion-resolution padding from an obstacle can touch it.
+        occupied_cells: the spheres of the arm, torso and head test a map's
+            occupied cells as solid boxes, not the points in them: a cell
+            keeps one point of the surface that crosses it, and the surface's
+            other parts can lie up to the cell's diagonal from it (a TV
+            screen's bottom edge 2.3 cm below the lowest point the map kept
+            of it). The gripper and the base test the points: the gripper
+            closes around the target beside its support (boxes there would
+            rule out most grasps of low objects), and the base keeps its own
+            clearance (`base_extra_padding`, the base costmap). Cells are the
+            map's voxels where the field's resolution is the map's voxel size
+            (`DistanceField.from_points` uses the same grid).
     """
 
     motion_resolution: float = 0.03
@@ -106,6 +118,7 @@ class CollisionCheckerConfig:
     head_tilt: float = 0.0
     self_padding: float = 0.015
     base_extra_padding: float = 0.0
+    occupied_cells: bool = True
 
 
 class SphereCollisionChecker:
@@ -147,6 +160,9 @@ class SphereCollisionChecker:
         self.check_env = np.ones(self.sph_link.shape[0], dtype=np.bool_)
         self.is_gripper = (np.zeros(self.sph_link.shape[0], dtype=np.bool_) if is_gripper is None
                            else np.ascontiguousarray(is_gripper, dtype=np.bool_).reshape(self.sph_link.shape[0]))
+        # How each sphere tests a map (see `CollisionCheckerConfig.occupied_cells`).
+        arm = TEST_CELLS if config.occupied_cells else TEST_POINTS
+        self.env_test = np.select([self.is_gripper, self.is_base], [TEST_TARGET_POINTS, TEST_POINTS], arm).astype(np.int64)
         self._body = self._body_arrays(body_primitives)
         if prune_self_tests:
             keep_pairs, keep_body = reachable_self_tests(tree, self.sph_link, self.sph_c, self.base_radius,
@@ -202,7 +218,7 @@ class SphereCollisionChecker:
             self._field = (True, f.dist, f.origin, f.resolution, f.margin, f.points, f.cell_keys, f.cell_start)
         self._field += (np.append(np.asarray(env.grasp_target, dtype=float), env.grasp_target_floor),
                         float(env.grasp_target_radius),
-                        self.is_gripper)
+                        self.env_test)
 
     def with_environment(self, env: CollisionEnvironment) -> "SphereCollisionChecker":
         """A copy of this checker over another environment."""

@@ -119,6 +119,8 @@ class PlannerConfig:
         extra_padding: extra sphere inflation [m].
         base_extra_padding: further inflation of the base's spheres while
             planning [m] (`CollisionCheckerConfig.base_extra_padding`).
+        occupied_cells: the arm's spheres test a map's occupied cells, not
+            its points (`CollisionCheckerConfig.occupied_cells`).
         base_shortcut_iterations: Reeds-Shepp shortcut tries on the base path.
         arm_shortcut_iterations: shortcut tries on each fixed-base arm path.
         along_path_shortcut_iterations: shortcut tries on an arm path found
@@ -161,6 +163,7 @@ class PlannerConfig:
     motion_resolution: float = 0.03
     extra_padding: float = 0.0
     base_extra_padding: float = 0.0
+    occupied_cells: bool = True
     base_shortcut_iterations: int = 15
     arm_shortcut_iterations: int = 25
     along_path_shortcut_iterations: int = 6
@@ -181,7 +184,8 @@ class PlannerConfig:
         """The sphere collision checker's parameters (its padding) of this
         planner; the subgoal samplers check their goals with the same."""
         return CollisionCheckerConfig(motion_resolution=self.motion_resolution, extra_padding=self.extra_padding,
-                                      base_extra_padding=self.base_extra_padding)
+                                      base_extra_padding=self.base_extra_padding,
+                                      occupied_cells=self.occupied_cells)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -374,7 +374,7 @@ class SubgoalPipeline:
         costmap = BaseCostmap.from_points(p_WM, self.config.pregrasp.costmap,
                                           include_xy=np.stack([p_WT[:2], q[:2]]), robot_xy=q[:2])
         ee_poses, accept = None, None
-        aimed_pregrasp = None  # (accepted sample, its grasp's pre-grasp configuration)
+        aimed_pregrasp = None  # (accepted sample, its grasp's pre-grasp configuration, its head pan/tilt)
         is_free = self.collision_fn(p_WM, p_WT, q)  # its crop covers the target's surroundings
         grasp_is_free = self.collision_fn(p_WM, p_WT, q, grasp=True)
         if self.config.pregrasp_from_grasps:
@@ -399,11 +399,16 @@ class SubgoalPipeline:
                     if goal is None or not goal.success:
                         goal = self._grasp_goal(candidates, q_pre, p_WM, p_WT, is_free=is_free,
                                                 grasp_is_free=grasp_is_free)
-                    if goal.success:
-                        self._aimed_grasp = (q_pre, goal.X_WG, float(candidates.width[goal.candidate_index]))
-                        if at_own_grasp:
-                            aimed_pregrasp = (q_pre, goal.q_pregrasp)
-                    return goal.success
+                    if not goal.success:
+                        return False
+                    if at_own_grasp:
+                        # The arm goes to the grasp's own pre-grasp, which must see the target too.
+                        visible, head = self.visibility.check(goal.q_pregrasp[None], p_WT)
+                        if not visible[0]:
+                            return False
+                        aimed_pregrasp = (q_pre, goal.q_pregrasp, head[0])
+                    self._aimed_grasp = (q_pre, goal.X_WG, float(candidates.width[goal.candidate_index]))
+                    return True
 
         result = self.pregrasp.sample(p_WM, p_WT, q, is_free, self.rng, costmap=costmap,
                                       ee_poses=ee_poses, accept=accept)
@@ -411,11 +416,9 @@ class SubgoalPipeline:
             category = FailureCategory.REACHABILITY if result.funnel["ik"] == 0 else FailureCategory.SUBGOAL
             return SubgoalProposal.failure(result.failure_reason, category)
         if aimed_pregrasp is not None:
-            sample, q_aimed = aimed_pregrasp
+            sample, q_aimed, head = aimed_pregrasp
             if np.allclose(sample, result.q):
-                visible, head = self.visibility.check(q_aimed[None], p_WT)
-                if visible[0]:
-                    return SubgoalProposal(True, q_aimed, head=head[0])
+                return SubgoalProposal(True, q_aimed, head=head)
         return SubgoalProposal(True, result.q, head=result.head)
 
     def sample_observe(self, inputs: PolicyInputs) -> SubgoalProposal:
