@@ -149,9 +149,11 @@ def test_base_extra_padding_inflates_only_the_base_spheres_and_only_while_planni
     """A base pose 3 cm from a low wall is free at the default padding and
     rejected with 4 cm of base padding; the arm's spheres and the unpadded test
     (whether a configuration penetrates) are unchanged."""
-    plain = WholeBodyPlanner.for_fetch(CollisionEnvironment(), CONFIG)
+    plain = WholeBodyPlanner.for_fetch(CollisionEnvironment(), PlannerConfig(attempt_wall_limit_s=5.0,
+                                                                             base_extra_padding=0.0))
     wide = WholeBodyPlanner.for_fetch(CollisionEnvironment(), PlannerConfig(attempt_wall_limit_s=5.0,
                                                                             base_extra_padding=0.04))
+    assert PlannerConfig().base_extra_padding == 0.03  # the default: the base's tracking error
     is_base = wide.checker.is_base
     assert is_base.any() and not is_base.all()
     np.testing.assert_allclose(wide.checker.sph_r - plain.checker.sph_r, 0.04 * is_base)

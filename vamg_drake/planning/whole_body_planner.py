@@ -118,7 +118,8 @@ class PlannerConfig:
         motion_resolution: max sphere displacement between checked states [m].
         extra_padding: extra sphere inflation [m].
         base_extra_padding: further inflation of the base's spheres while
-            planning [m] (`CollisionCheckerConfig.base_extra_padding`).
+            planning [m] (`CollisionCheckerConfig.base_extra_padding`): 3 cm,
+            the base's lateral tracking error next to furniture.
         occupied_cells: the arm's spheres test a map's occupied cells, not
             its points (`CollisionCheckerConfig.occupied_cells`).
         base_shortcut_iterations: Reeds-Shepp shortcut tries on the base path.
@@ -162,7 +163,7 @@ class PlannerConfig:
     costmap_resolution: float = 0.025
     motion_resolution: float = 0.03
     extra_padding: float = 0.0
-    base_extra_padding: float = 0.0
+    base_extra_padding: float = 0.03
     occupied_cells: bool = True
     base_shortcut_iterations: int = 15
     arm_shortcut_iterations: int = 25
