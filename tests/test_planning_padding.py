@@ -146,8 +146,8 @@ def test_start_inside_the_self_collision_padding_plans():
 
 
 def test_base_extra_padding_inflates_only_the_base_spheres_and_only_while_planning():
-    """A base pose 3 cm from a low wall is free at the default padding and
-    rejected with 4 cm of base padding; the arm's spheres and the unpadded test
+    """A base pose 3 cm from a low wall is free without base padding and
+    rejected with 4 cm of it; the arm's spheres and the unpadded test
     (whether a configuration penetrates) are unchanged."""
     plain = WholeBodyPlanner.for_fetch(CollisionEnvironment(), PlannerConfig(attempt_wall_limit_s=5.0,
                                                                              base_extra_padding=0.0))

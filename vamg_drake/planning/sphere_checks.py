@@ -126,7 +126,7 @@ def _env_free(C, data):
                         exempt = ex * ex + ey * ey + ez * ez <= (tgt_r + r) ** 2
                     if not exempt and d + margin <= r:
                         return False
-                    if _sphere_hits_points(cx, cy, cz, r, dist, origin, h, pts, cell_keys, cell_start,
+                    if _sphere_hits_map(cx, cy, cz, r, dist, origin, h, pts, cell_keys, cell_start,
                                            exempt, tgt_c, tgt_r, test == TEST_CELLS):
                         return False
     # Broad phase: primitives whose AABB overlaps the robot's.
@@ -396,10 +396,10 @@ def base_pose_free_exact(x, y, theta, data):
 
 
 @numba.njit(cache=True)
-def _sphere_hits_points(cx, cy, cz, r, dist, origin, h, pts, cell_keys, cell_start, exempt, tgt_c, tgt_r,
-                        cells=False):
-    """Whether some obstacle point lies within r of (cx, cy, cz): the points of
-    the occupied cells (dist == 0) that the sphere's bounding box overlaps,
+def _sphere_hits_map(cx, cy, cz, r, dist, origin, h, pts, cell_keys, cell_start, exempt, tgt_c, tgt_r,
+                     cells=False):
+    """Whether the map reaches within r of (cx, cy, cz): some point of the
+    occupied cells (dist == 0) that the sphere's bounding box overlaps,
     except, when `exempt`, those within tgt_r of tgt_c[:3] and above tgt_c[3];
     with `cells`, whether an occupied cell's box does."""
     eps = 1e-9
