@@ -179,6 +179,38 @@ def test_point_field_decides_the_shell_exactly():
     assert np.sum(~truth & self_ok) >= 10
 
 
+def test_a_cell_is_a_box_except_across_a_surface():
+    """The arm's test of a map cell: the whole cell, except along a surface's
+    normal, where the surface lies at its points. A sphere whose bottom
+    reaches into a table top's cells above the points is free; the same cells
+    on top of a block (occupied cells below them) are solid; the corner
+    between a table top and the wall it meets is solid too."""
+    from vamg_drake.planning.sphere_checks import _sphere_hits_map
+
+    h = 0.03
+    xs, ys = np.meshgrid(np.arange(0.0, 0.3, h) + 0.015, np.arange(0.0, 0.3, h) + 0.015)
+    top = np.stack([xs.ravel(), ys.ravel(), np.full(xs.size, 0.705)], axis=1)  # in the cell [0.69, 0.72]
+    no_target = np.zeros(4)
+
+    def hits(points, centre, radius, cells=True):
+        f = CollisionEnvironment.from_points(points, h).field
+        return _sphere_hits_map(*centre, radius, f.dist, f.origin, f.resolution, f.points, f.cell_keys,
+                                f.cell_start, False, no_target, 0.0, cells)
+
+    above = (0.15, 0.15, 0.705 + 0.01 + 0.05)  # 1 cm above the top, inside its cells
+    assert not hits(top, above, 0.05) and not hits(top, above, 0.05, cells=False)
+    assert hits(top, (0.15, 0.15, 0.705 + 0.045), 0.05)  # 5 mm into the top
+    block = np.concatenate([top, top - [0.0, 0.0, h]])
+    assert hits(block, above, 0.05) and not hits(block, above, 0.05, cells=False)
+    # A wall rising from the table's edge x = 0.3: the top's last row of cells
+    # meets it; a sphere beside the wall just above the top touches that corner.
+    zs, ys2 = np.meshgrid(np.arange(0.735, 0.9, h), np.arange(0.0, 0.3, h) + 0.015)
+    wall = np.stack([np.full(zs.size, 0.295), ys2.ravel(), zs.ravel()], axis=1)
+    corner = (0.295 - 0.02 - 0.011, 0.15, 0.705 + 0.02 + 0.008)
+    assert hits(np.concatenate([top, wall]), corner, 0.02)
+    assert not hits(np.concatenate([top, wall]), corner, 0.02, cells=False)
+
+
 def test_grasp_target_points_may_touch_the_gripper_only():
     """Points within the grasp target's ball block the forearm but not the fingers."""
     checker = SphereCollisionChecker.for_fetch(CollisionEnvironment(), CollisionCheckerConfig(motion_resolution=0.0))

@@ -171,9 +171,11 @@ def test_base_extra_padding_inflates_only_the_base_spheres_and_only_while_planni
 
 def test_the_arm_tests_occupied_cells_and_the_gripper_and_base_test_points():
     """A map cell keeps one point of the surface crossing it; the surface may
-    be anywhere in the cell. An arm sphere 1 cm from a wall of points, inside
-    the cells that hold them, is free when it tests the points and in
-    collision when it tests the cells (the default)."""
+    reach anywhere in the cell along itself. An arm sphere 1 cm from the edge
+    of a wall of points, inside the cells that hold the edge, is free when it
+    tests the points and in collision when it tests the cells (the default).
+    Across the wall, the wall is where its points are: a sphere 1 cm in front
+    of it is free for both tests."""
     from vamg_drake.planning.sphere_checks import TEST_CELLS, TEST_POINTS, TEST_TARGET_POINTS
 
     cells = WholeBodyPlanner.for_fetch(CollisionEnvironment(), CONFIG).checker
@@ -192,13 +194,20 @@ def test_the_arm_tests_occupied_cells_and_the_gripper_and_base_test_points():
     arm = (test == TEST_CELLS) & cells.check_env
     front = int(np.argmax(np.where(arm, c[:, 0] + r, -np.inf)))
     # Move the robot so that the sphere reaches 2 mm into a cell; the points
-    # lie 1 cm further, in the same cell.
+    # nearest it lie 1 cm further, in the same cell.
     dx = math.ceil((c[front, 0] + r[front]) / h) * h + 0.002 - (c[front, 0] + r[front])
     q = layout.stow_configuration(dx, 0.0, 0.0)
     c = cells.sphere_centers(q[None])[0]
     x_points = c[front, 0] + r[front] + 0.01
-    ys, zs = np.meshgrid(np.arange(-0.06, 0.07, h) + c[front, 1], np.arange(-0.06, 0.07, h) + c[front, 2])
-    wall = np.stack([np.full(ys.size, x_points), ys.ravel(), zs.ravel()], axis=1)
-    env = CollisionEnvironment.from_points(wall, h)
+    # A wall in the plane y = c_y whose edge faces the sphere along x.
+    xs, zs = np.meshgrid(x_points + np.arange(5) * h, np.arange(-0.06, 0.07, h) + c[front, 2])
+    edge_on = np.stack([xs.ravel(), np.full(xs.size, c[front, 1]), zs.ravel()], axis=1)
+    env = CollisionEnvironment.from_points(edge_on, h)
     assert points.with_environment(env).unpadded().is_free(q[None])[0]
     assert not cells.with_environment(env).unpadded().is_free(q[None])[0]
+    # A wall in the plane x = x_points, facing the sphere.
+    ys, zs = np.meshgrid(np.arange(-0.06, 0.07, h) + c[front, 1], np.arange(-0.06, 0.07, h) + c[front, 2])
+    facing = np.stack([np.full(ys.size, x_points), ys.ravel(), zs.ravel()], axis=1)
+    env = CollisionEnvironment.from_points(facing, h)
+    assert points.with_environment(env).unpadded().is_free(q[None])[0]
+    assert cells.with_environment(env).unpadded().is_free(q[None])[0]

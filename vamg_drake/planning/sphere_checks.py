@@ -60,7 +60,7 @@ def env_aabbs(box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, out):
 
 
 #: How a sphere tests a map (`SphereCollisionChecker.env_test`): against its
-#: points; against its occupied cells as solid boxes; against its points but
+#: points; against its occupied cells as boxes (`_sphere_hits_map`); against its points but
 #: those of the grasp target (the gripper).
 TEST_POINTS, TEST_CELLS, TEST_TARGET_POINTS = 0, 1, 2
 
@@ -395,16 +395,50 @@ def base_pose_free_exact(x, y, theta, data):
     return config_free_data(data)
 
 
+@numba.njit(cache=True, inline="always")
+def _occupied(dist, i, j, k):
+    """Whether cell (i, j, k) is occupied (outside the grid: not)."""
+    return (0 <= i < dist.shape[0] and 0 <= j < dist.shape[1] and 0 <= k < dist.shape[2]
+            and dist[i, j, k] == 0.0)
+
+
+@numba.njit(cache=True, inline="always")
+def _is_surface_across(dist, idx, a):
+    """Whether occupied cell idx (3,) holds a piece of a surface with its
+    normal along axis a: both of its neighbours along a are empty and at least
+    two of its four neighbours across a are occupied. Such a cell's surface
+    lies at its points' coordinate along a, not anywhere in the cell."""
+    n = 0
+    for b in range(3):
+        for step in (-1, 1):
+            i, j, k = idx[0], idx[1], idx[2]
+            if b == 0:
+                i += step
+            elif b == 1:
+                j += step
+            else:
+                k += step
+            if _occupied(dist, i, j, k):
+                if b == a:
+                    return False
+                n += 1
+    return n >= 2
+
+
 @numba.njit(cache=True)
 def _sphere_hits_map(cx, cy, cz, r, dist, origin, h, pts, cell_keys, cell_start, exempt, tgt_c, tgt_r,
                      cells=False):
     """Whether the map reaches within r of (cx, cy, cz): some point of the
     occupied cells (dist == 0) that the sphere's bounding box overlaps,
     except, when `exempt`, those within tgt_r of tgt_c[:3] and above tgt_c[3];
-    with `cells`, whether an occupied cell's box does."""
+    with `cells`, whether an occupied cell's box does. A cell's box spans the
+    cell, except across a surface (`_is_surface_across`): there it spans its
+    points' extent (a table top's cell is the slab at the top's height, a TV
+    screen's bottom cell still reaches to the cell's lower face)."""
     eps = 1e-9
     lo = np.empty(3, np.int64)
     hi = np.empty(3, np.int64)
+    idx = np.empty(3, np.int64)
     c = (cx, cy, cz)
     for a in range(3):
         lo[a] = max(int(math.floor((c[a] - r - eps - origin[a]) / h + 0.5)), 0)
@@ -425,11 +459,28 @@ def _sphere_hits_map(cx, cy, cz, r, dist, origin, h, pts, cell_keys, cell_start,
                 ez = max(abs(origin[2] + h * k - cz) - half, 0.0)
                 if exy + ez * ez > r2:
                     continue
-                if cells:
-                    return True
                 key = (i * ny + j) * nz + k
                 m = np.searchsorted(cell_keys, key)
-                if m >= cell_keys.shape[0] or cell_keys[m] != key:
+                has_points = m < cell_keys.shape[0] and cell_keys[m] == key
+                if cells:
+                    if not has_points:
+                        return True
+                    idx[0], idx[1], idx[2] = i, j, k
+                    d2 = 0.0
+                    for a in range(3):
+                        b_lo = origin[a] + h * idx[a] - half
+                        b_hi = b_lo + h
+                        if _is_surface_across(dist, idx, a):
+                            b_lo, b_hi = math.inf, -math.inf
+                            for n in range(cell_start[m], cell_start[m + 1]):
+                                b_lo = min(b_lo, pts[n, a])
+                                b_hi = max(b_hi, pts[n, a])
+                        e = max(b_lo - c[a], c[a] - b_hi, 0.0)
+                        d2 += e * e
+                    if d2 <= r2:
+                        return True
+                    continue
+                if not has_points:
                     continue
                 for n in range(cell_start[m], cell_start[m + 1]):
                     dx = pts[n, 0] - cx

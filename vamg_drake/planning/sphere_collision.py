@@ -100,11 +100,15 @@ class CollisionCheckerConfig:
             centimetres, more than the arm's, so a base path planned at the
             motion-resolution padding from an obstacle can touch it.
         occupied_cells: the spheres of the arm, torso and head test a map's
-            occupied cells as solid boxes, not the points in them: a cell
-            keeps one point of the surface that crosses it, and the surface's
-            other parts can lie up to the cell's diagonal from it (a TV
-            screen's bottom edge 2.3 cm below the lowest point the map kept
-            of it). The gripper and the base test the points: the gripper
+            occupied cells as boxes, not the points in them: a cell keeps one
+            point of the surface that crosses it, and the surface's other
+            parts can lie up to the cell's diagonal from it along the surface
+            (a TV screen's bottom edge 2.3 cm below the lowest point the map
+            kept of it). Across a surface (a cell whose two neighbours along
+            an axis are empty, with occupied neighbours beside it) the box is
+            flat at its points: a table top is where the map saw it, so the
+            wrist may pass above it as close as the points allow. The gripper
+            and the base test the points: the gripper
             closes around the target beside its support (boxes there would
             rule out most grasps of low objects), and the base keeps its own
             clearance (`base_extra_padding`, the base costmap). Cells are the
