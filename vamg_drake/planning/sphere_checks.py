@@ -403,26 +403,18 @@ def _occupied(dist, i, j, k):
 
 
 @numba.njit(cache=True, inline="always")
-def _is_surface_across(dist, idx, a):
-    """Whether occupied cell idx (3,) holds a piece of a surface with its
-    normal along axis a: both of its neighbours along a are empty and at least
-    two of its four neighbours across a are occupied. Such a cell's surface
-    lies at its points' coordinate along a, not anywhere in the cell."""
-    n = 0
-    for b in range(3):
-        for step in (-1, 1):
-            i, j, k = idx[0], idx[1], idx[2]
-            if b == 0:
-                i += step
-            elif b == 1:
-                j += step
-            else:
-                k += step
-            if _occupied(dist, i, j, k):
-                if b == a:
-                    return False
-                n += 1
-    return n >= 2
+def _surface_normals(dist, idx, out):
+    """out[a]: whether occupied cell idx (3,) holds a piece of a surface with
+    its normal along axis a: both of its neighbours along a are empty and at
+    least two of its four neighbours across a are occupied. Such a cell's
+    surface lies at its points' coordinate along a, not anywhere in the cell."""
+    i, j, k = idx[0], idx[1], idx[2]
+    n0 = int(_occupied(dist, i - 1, j, k)) + int(_occupied(dist, i + 1, j, k))
+    n1 = int(_occupied(dist, i, j - 1, k)) + int(_occupied(dist, i, j + 1, k))
+    n2 = int(_occupied(dist, i, j, k - 1)) + int(_occupied(dist, i, j, k + 1))
+    out[0] = n0 == 0 and n1 + n2 >= 2
+    out[1] = n1 == 0 and n0 + n2 >= 2
+    out[2] = n2 == 0 and n0 + n1 >= 2
 
 
 @numba.njit(cache=True)
@@ -432,13 +424,14 @@ def _sphere_hits_map(cx, cy, cz, r, dist, origin, h, pts, cell_keys, cell_start,
     occupied cells (dist == 0) that the sphere's bounding box overlaps,
     except, when `exempt`, those within tgt_r of tgt_c[:3] and above tgt_c[3];
     with `cells`, whether an occupied cell's box does. A cell's box spans the
-    cell, except across a surface (`_is_surface_across`): there it spans its
+    cell, except across a surface (`_surface_normals`): there it spans its
     points' extent (a table top's cell is the slab at the top's height, a TV
     screen's bottom cell still reaches to the cell's lower face)."""
     eps = 1e-9
     lo = np.empty(3, np.int64)
     hi = np.empty(3, np.int64)
     idx = np.empty(3, np.int64)
+    normal = np.empty(3, np.bool_)
     c = (cx, cy, cz)
     for a in range(3):
         lo[a] = max(int(math.floor((c[a] - r - eps - origin[a]) / h + 0.5)), 0)
@@ -466,11 +459,12 @@ def _sphere_hits_map(cx, cy, cz, r, dist, origin, h, pts, cell_keys, cell_start,
                     if not has_points:
                         return True
                     idx[0], idx[1], idx[2] = i, j, k
+                    _surface_normals(dist, idx, normal)
                     d2 = 0.0
                     for a in range(3):
                         b_lo = origin[a] + h * idx[a] - half
                         b_hi = b_lo + h
-                        if _is_surface_across(dist, idx, a):
+                        if normal[a]:
                             b_lo, b_hi = math.inf, -math.inf
                             for n in range(cell_start[m], cell_start[m + 1]):
                                 b_lo = min(b_lo, pts[n, a])
