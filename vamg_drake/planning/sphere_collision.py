@@ -108,10 +108,10 @@ class CollisionCheckerConfig:
             an axis are empty, with occupied neighbours beside it) the box is
             flat at its points: a table top is where the map saw it, so the
             wrist may pass above it as close as the points allow. The gripper
-            and the base test the points: the gripper
-            closes around the target beside its support (boxes there would
-            rule out most grasps of low objects), and the base keeps its own
-            clearance (`base_extra_padding`, the base costmap). Cells are the
+            and the base test the points: the gripper closes around the target
+            beside its support (boxes there would rule out most grasps of low
+            objects), and the base keeps its own clearance
+            (`base_extra_padding`, the base costmap). Cells are the
             map's voxels where the field's resolution is the map's voxel size
             (`DistanceField.from_points` uses the same grid).
     """
