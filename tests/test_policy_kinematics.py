@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses as dc
 import json
 
 import numpy as np
@@ -203,3 +204,34 @@ def test_drake_ik_collision_aware() -> None:
     assert ok
     np.testing.assert_allclose(FetchKinematics.instance().gripper_pose(q_sol)[:3, 3], X[:3, 3], atol=2.5e-3)
     assert SphereModel.load().self_collision_free(q_sol[None])[0]
+
+
+def test_decoded_reachability_is_stored_and_memory_mapped(tmp_path, caplog) -> None:
+    """The first load stores the decoded arrays; later loads map them (read
+    only) and give the same maps; a changed compressed file or a damaged
+    decoded file is decoded again, never trusted and never a rebuild."""
+    config = KinematicMapsConfig(reach_samples=20_000, torso_samples=20_000)
+    maps = KinematicMaps.build(config, progress=False)
+    folder = tmp_path / "maps"
+    maps.save(folder)
+    first = KinematicMaps.load(folder)
+    assert (folder / "reachability.decoded.json").is_file()
+    assert first.reachability.keys.flags.writeable  # decoded in memory this time
+    mapped = KinematicMaps.load(folder)
+    assert not mapped.reachability.keys.flags.writeable  # read-only pages of the stored file
+    for name in ("keys", "count", "manipulability"):
+        np.testing.assert_array_equal(getattr(mapped.reachability, name), getattr(first.reachability, name))
+        assert type(getattr(mapped.reachability, name)) is np.ndarray
+    X_BG = np.tile(np.eye(4), (5, 1, 1))
+    X_BG[:, :3, 3] = [[0.6, 0.0, 0.8], [0.5, 0.2, 0.6], [0.7, -0.2, 1.0], [3.0, 0.0, 0.0], [0.4, 0.1, 0.4]]
+    np.testing.assert_array_equal(mapped.capability.is_reachable(X_BG), maps.capability.is_reachable(X_BG))
+    np.testing.assert_array_equal(mapped.reachability.keys, maps.reachability.keys)
+
+    # The compressed file is rewritten (new maps): the stored arrays are stale.
+    other = KinematicMaps.build(dc.replace(config, reach_samples=10_000), progress=False)
+    other.save(folder)
+    np.testing.assert_array_equal(KinematicMaps.load(folder).reachability.keys, other.reachability.keys)
+    # A damaged stored array: decoded from the compressed file again.
+    (folder / "reachability.keys.npy").write_bytes(b"garbage")
+    np.testing.assert_array_equal(KinematicMaps.load(folder).reachability.keys, other.reachability.keys)
+    np.testing.assert_array_equal(KinematicMaps.load(folder).reachability.keys, other.reachability.keys)

@@ -55,6 +55,63 @@ N_ORIENTATION = N_YAW * N_PITCH * N_ROLL
 FORMAT_VERSION = 2
 
 
+#: The reachability arrays as the maps use them (16 M voxels: decompressing and
+#: converting the compressed file costs about 2 s per episode), stored beside
+#: it uncompressed on first load and memory-mapped after: every episode process
+#: shares the operating system's page cache instead of decoding its own copy.
+_DECODED_DTYPES = {"keys": np.int64, "count": np.int32, "manipulability": np.float32}
+#: Written last; names the compressed file's size and mtime the arrays decode.
+_DECODED_STAMP = "reachability.decoded.json"
+
+
+def _reachability_stamp(folder: Path) -> dict:
+    stat = (folder / "reachability.npz").stat()
+    return {"source_size": stat.st_size, "source_mtime_ns": stat.st_mtime_ns}
+
+
+def _load_decoded(folder: Path, stamp: dict) -> dict[str, np.ndarray] | None:
+    """The memory-mapped decoded arrays, or None when they are absent, stale
+    (the compressed file changed since) or unreadable."""
+    try:
+        if json.loads((folder / _DECODED_STAMP).read_text()) != stamp:
+            return None
+        # np.asarray: plain read-only ndarray views of the maps (no memmap subclass in the lookups).
+        arrays = {name: np.asarray(np.load(folder / f"reachability.{name}.npy", mmap_mode="r"))
+                  for name in _DECODED_DTYPES}
+    except (OSError, ValueError):
+        return None
+    size = arrays["keys"].shape
+    if any(a.dtype != _DECODED_DTYPES[n] or a.shape != size or a.ndim != 1 for n, a in arrays.items()):
+        return None
+    return arrays
+
+
+def _decode_and_store(folder: Path, f, stamp: dict) -> dict[str, np.ndarray]:
+    """Decodes the open compressed file ``f`` and stores the arrays for the
+    next load (atomically, the stamp last); a cache folder that cannot be
+    written costs only the decoding."""
+    arrays = {
+        "keys": np.cumsum(f["key_deltas"].astype(np.int64)),
+        "count": f["count"].astype(np.int32),
+        "manipulability": f["manipulability"].astype(np.float32),
+    }
+    tag = f"{os.getpid()}.tmp"
+    try:
+        for name, array in arrays.items():
+            tmp = folder / f"reachability.{name}.{tag}.npy"
+            np.save(tmp, array)
+            os.replace(tmp, folder / f"reachability.{name}.npy")
+        tmp = folder / f"{_DECODED_STAMP}.{tag}"
+        tmp.write_text(json.dumps(stamp))
+        os.replace(tmp, folder / _DECODED_STAMP)
+    except OSError as e:
+        _log.info("kinematic maps: decoded arrays not stored in %s (%s); decoding on every load", folder, e)
+    finally:
+        for tmp in folder.glob(f"*.{tag}*"):
+            tmp.unlink(missing_ok=True)
+    return arrays
+
+
 @dc.dataclass
 class KinematicMapsConfig:
     """Resolution, extent and sample counts of the kinematic maps."""
@@ -423,6 +480,7 @@ class KinematicMaps:
         folder.mkdir(parents=True, exist_ok=True)
         r, t = self.reachability, self.torso_height
         tag = f"{os.getpid()}.tmp"
+        (folder / _DECODED_STAMP).unlink(missing_ok=True)  # the decoded arrays describe the old file
 
         def replace_into_place(name: str, write) -> None:
             tmp = folder / f"{Path(name).stem}.{tag}{Path(name).suffix}"
@@ -453,10 +511,11 @@ class KinematicMaps:
         for name in ("reachability.npz", "torso_height.npz", "meta.json"):
             if not (folder / name).exists():
                 raise FileNotFoundError(f"kinematic maps: missing {folder / name}")
+        stamp = _reachability_stamp(folder)  # before opening: a file replaced meanwhile is never stamped
         with np.load(folder / "reachability.npz") as f:
+            arrays = _load_decoded(folder, stamp) or _decode_and_store(folder, f, stamp)
             reach = ReachabilityMap(
-                np.cumsum(f["key_deltas"].astype(np.int64)), f["count"].astype(np.int32),
-                f["manipulability"].astype(np.float32), f["box_lower"], float(f["resolution"]),
+                arrays["keys"], arrays["count"], arrays["manipulability"], f["box_lower"], float(f["resolution"]),
                 tuple(int(s) for s in f["shape"]),
             )
         with np.load(folder / "torso_height.npz") as f:
