@@ -7,7 +7,7 @@ from pydrake.systems.analysis import Simulator
 from scenes import box_room_scenario, table
 from vamg_drake.diagram import DiagramConfig, build_diagram
 from vamg_drake.robot.kinematics import FetchKinematics
-from vamg_drake.world.clutter_sleep import ClutterSleepConfig
+from vamg_drake.world.clutter_sleep import ClutterSleepConfig, sleeping_objects
 from vamg_drake.world.episode_monitor import COLLISION, PLANNING, RUNNING, SUCCESS, Contact, EpisodeJudge
 from vamg_drake.world.scenario import Box, Furniture, Part, PlanarPose
 
@@ -178,13 +178,36 @@ def _two_object_room():
     return dc.replace(scenario, objects=scenario.objects + [near])
 
 
-@pytest.mark.parametrize("awake_radius, asleep", [(0.2, True), (0.5, False)])
-def test_clutter_away_from_the_target_is_built_asleep(awake_radius, asleep):
+def test_clutter_sleeps_by_the_gap_between_bounding_spheres():
+    """An object sleeps when its bounding sphere stays more than the gap away
+    from the target's: a large object stays awake farther out than a small one."""
+    import dataclasses as dc
+
+    from vamg_drake.world.scenario import PlacedObject
+
+    scenario = box_room_scenario()  # the target: a soup can at (2, 0, 0.8)
+    near_small = PlacedObject("golf_ball", [2.0, 0.35, 0.8], [0, 0, 0], "table_0/top", 0.75)
+    far_small = PlacedObject("tennis_ball", [2.0, -0.40, 0.8], [0, 0, 0], "table_0/top", 0.75)
+    far_large = PlacedObject("hammer", [2.4, 0.0, 0.8], [0, 0, 0], "table_0/top", 0.75)
+    scenario = dc.replace(scenario, objects=scenario.objects + [near_small, far_small, far_large])
+    radius = {"tomato_soup_can": 0.05, "golf_ball": 0.02, "tennis_ball": 0.03, "hammer": 0.2}.__getitem__
+    config = ClutterSleepConfig(awake_gap=0.2)
+    # Gaps: golf ball 0.35 - 0.07 = 0.28, tennis ball 0.40 - 0.08 = 0.32, hammer 0.40 - 0.25 = 0.15.
+    assert sleeping_objects(scenario, config, radius) == ["golf_ball", "tennis_ball"]
+    assert sleeping_objects(scenario, ClutterSleepConfig(awake_gap=0.3), radius) == ["tennis_ball"]
+    assert sleeping_objects(scenario, ClutterSleepConfig(enabled=False), radius) == []
+    # The converted hulls' radii (soup can 0.07, golf ball 0.04, tennis ball 0.06, hammer 0.21 m).
+    assert sleeping_objects(scenario, config) == ["golf_ball", "tennis_ball"]
+
+
+@pytest.mark.parametrize("awake_gap, asleep", [(0.1, True), (0.2, False)])
+def test_clutter_away_from_the_target_is_built_asleep(awake_gap, asleep):
     config = DiagramConfig(policy="scripted")
-    config.world.clutter_sleep = ClutterSleepConfig(awake_radius=awake_radius)
+    config.world.clutter_sleep = ClutterSleepConfig(awake_gap=awake_gap)
     ed = build_diagram(_two_object_room(), config)
     scene = ed.world.scene
-    assert scene.asleep == (["mug"] if asleep else [])  # the mug is 0.3 m from the target, which never sleeps
+    # The mug is 0.3 m from the target (which never sleeps): their bounding spheres are 0.14 m apart.
+    assert scene.asleep == (["mug"] if asleep else [])
     plant = ed.world.plant
     if asleep:
         with pytest.raises(KeyError, match="asleep"):

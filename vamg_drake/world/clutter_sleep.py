@@ -6,8 +6,11 @@ most of the plant's cost, although the objects away from the target never
 move. Point contact is no substitute: with one contact point per pair,
 resting objects rock, and one rolled off its table within 10 s.
 
-Every object farther than ``awake_radius`` from the target is built asleep
-(``sleeping_objects`` decides, ``scene_geometry.add_scene`` builds): instead
+Every object whose hull stays farther than ``awake_gap`` from the target's
+is built asleep (``sleeping_objects`` decides, ``scene_geometry.add_scene``
+builds; the gap is measured between the objects' bounding spheres, so a
+hammer beside a golf ball stays awake where two golf balls as far apart
+sleep): instead
 of a free body it is anchored geometry on the world body at its settled pose.
 It cannot move, SceneGraph never pairs it with the (also anchored) furniture,
 floor or other sleeping objects, and its contact with the robot, the target,
@@ -22,6 +25,7 @@ diagram: every Context of it, and ``Simulator.Initialize`` again, simulates
 the same world.
 """
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,22 +35,39 @@ import numpy as np
 class ClutterSleepConfig:
     """Attributes:
         enabled: build clutter away from the target asleep.
-        awake_radius: objects whose centroid lies within this distance [m]
-            of the target's stay awake (the fingers open 10 cm around it
-            and the target is lifted 10-15 cm).
+        awake_gap: objects whose bounding sphere comes within this distance
+            [m] of the target's stay awake. The open fingers reach about
+            6 cm beyond the target's surface and come in along a 10 cm
+            approach; the palm and the rest of the arm touching any object
+            ends the episode anyway. The lifted target rises 10-15 cm,
+            clear of objects beside it.
     """
 
     enabled: bool = True
-    awake_radius: float = 0.5
+    awake_gap: float = 0.2
 
 
-def sleeping_objects(scenario, config: ClutterSleepConfig | None = None) -> list[str]:
-    """Names of the scenario's objects (never the target) that are built asleep."""
+def sleeping_objects(scenario, config: ClutterSleepConfig | None = None,
+                     bounding_radius: Callable[[str], float] | None = None) -> list[str]:
+    """Names of the scenario's objects (never the target) that are built asleep.
+
+    ``bounding_radius(model)`` is the radius [m] of a model's bounding sphere
+    about its frame O (default: the converted YCB hull's,
+    `YcbAsset.bounding_radius`)."""
     config = config or ClutterSleepConfig()
     if not config.enabled:
         return []
-    p_WT = np.asarray(next(o.xyz for o in scenario.objects if o.name == scenario.target), dtype=float)
+    if bounding_radius is None:
+        from vamg_drake.world.ycb import load_ycb_asset
+
+        def bounding_radius(model: str) -> float:
+            return load_ycb_asset(model).bounding_radius
+
+    target = next(o for o in scenario.objects if o.name == scenario.target)
+    p_WT, r_T = np.asarray(target.xyz, dtype=float), bounding_radius(target.model or target.name)
     return sorted(
         o.name for o in scenario.objects
-        if o.name != scenario.target and np.linalg.norm(np.asarray(o.xyz, dtype=float) - p_WT) > config.awake_radius
+        if o.name != scenario.target
+        and np.linalg.norm(np.asarray(o.xyz, dtype=float) - p_WT) - r_T - bounding_radius(o.model or o.name)
+        > config.awake_gap
     )

@@ -162,6 +162,11 @@ class YcbAsset:
         return float(-self.bounds_O[0, 2])
 
     @property
+    def bounding_radius(self) -> float:
+        """Radius of the smallest O-centred sphere covering the hull's bounding box."""
+        return float(np.linalg.norm(np.abs(self.bounds_O).max(axis=0)))
+
+    @property
     def xy_radius(self) -> float:
         """Radius of the smallest O-centred circle covering the hull in xy."""
         corners = self.bounds_O[:, :2]
