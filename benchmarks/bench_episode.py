@@ -29,6 +29,11 @@ An untimed warm-up episode (the demo, 2 s) first loads numba's caches (of the
 reference tree too: they are per source tree, and compiling would count as
 the reference's episode time).
 
+Each episode runs on one core: numba's parallel kernels, Mesa's software
+rasterizer and OpenMP run one thread (``NUMBA_NUM_THREADS``, ``LP_NUM_THREADS``
+and ``OMP_NUM_THREADS`` default to 1 here and in the reference's subprocess;
+set them to measure otherwise). The busy processes use the other cores.
+
 With --json the last line is one JSON object of the metrics.
 """
 
@@ -44,14 +49,19 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
+#: One thread per episode process (read by numba and Mesa when they load, so set before the imports below).
+THREAD_VARIABLES = ("NUMBA_NUM_THREADS", "LP_NUM_THREADS", "OMP_NUM_THREADS")
+for _variable in THREAD_VARIABLES:
+    os.environ.setdefault(_variable, "1")
 
-from vamg_drake.bench.busy import busy_cpu
-from vamg_drake.diagram import DiagramConfig
-from vamg_drake.episode import EpisodeResult, run_episode
-from vamg_drake.scenarios import DEMO_SCENARIO
-from vamg_drake.world.rooms import RoomGeneratorConfig, generate_scenario
-from vamg_drake.world.scenario import load_scenario, save_scenario
+import numpy as np  # noqa: E402
+
+from vamg_drake.bench.busy import busy_cpu  # noqa: E402
+from vamg_drake.diagram import DiagramConfig  # noqa: E402
+from vamg_drake.episode import EpisodeResult, run_episode  # noqa: E402
+from vamg_drake.scenarios import DEMO_SCENARIO  # noqa: E402
+from vamg_drake.world.rooms import RoomGeneratorConfig, generate_scenario  # noqa: E402
+from vamg_drake.world.scenario import load_scenario, save_scenario  # noqa: E402
 
 #: The fields of an episode that must not depend on the machine.
 COMPARED = ("status", "kind", "detail", "sim_time", "path_length", "phases", "depth_frames", "planner_calls")
@@ -164,6 +174,7 @@ def main() -> None:
                           for m in modules if m != "planner_wall_limit"},
         planner_wall_limit_hits=int(sum(r["timings"].get("planner_wall_limit", {}).get("count", 0) for r in runs)),
         load_average=os.getloadavg()[0],
+        threads={v: os.environ[v] for v in THREAD_VARIABLES},
     )
     if args.reference is not None:
         refs = list(per_scenario.values())
