@@ -409,3 +409,37 @@ def test_verify_rechecks_earlier_grasps_on_a_new_cloud() -> None:
     assert not sampler.verify(np.concatenate([other_view, block]), target, X[None], g.width[:1])[0]
     # Too few points near the target: nothing verifies.
     assert not sampler.verify(_table(), target, g.X_WG[:3], g.width[:3]).any()
+
+
+def _dense_antipodal_pairs(points, normals, seeds, line_tolerance, min_width, max_width, cos_cone) -> np.ndarray:
+    """The pair search written out over all (seed, point) pairs at once: the definition the kernel must match."""
+    offset = points[None, :, :] - points[seeds, None, :]
+    dist = np.linalg.norm(offset, axis=2)
+    along = np.einsum("snk,sk->sn", offset, normals[seeds])
+    perp = np.sqrt(np.maximum(dist**2 - along**2, 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos_j = np.abs(np.einsum("snk,nk->sn", offset / dist[:, :, None], normals))
+    valid = ((perp <= line_tolerance) & (dist >= min_width) & (dist <= max_width)
+             & (np.abs(along) >= cos_cone * dist) & (cos_j >= cos_cone))
+    s, n = np.nonzero(valid)
+    width_bin = np.floor(dist[s, n] / 0.01).astype(np.int64)
+    _, first = np.unique(np.stack([s, width_bin], 1), axis=0, return_index=True)
+    return np.stack([seeds[s[first]], n[first]], axis=1)
+
+
+@pytest.mark.parametrize("name", ["can", "mug", "box"])
+def test_antipodal_pair_kernel_matches_the_dense_search(name: str) -> None:
+    from vamg_drake.policy.grasp_candidates import _antipodal_pair_kernel
+
+    cloud = np.concatenate([_table(), _objects()[name]])
+    sampler = AntipodalGraspSampler()
+    p_WT = _objects()[name].mean(axis=0)
+    crop, near = sampler._crop(cloud, p_WT)
+    normals = sampler._prepare(crop)
+    normals[5] = np.nan  # a degenerate normal fails every test
+    seeds = np.random.default_rng(0).choice(np.flatnonzero(near), size=120, replace=False)
+    args = (0.004, 0.004, 0.092, float(np.cos(np.arctan(0.4))))
+    expected = _dense_antipodal_pairs(crop, normals, seeds, *args)
+    pairs = _antipodal_pair_kernel(crop, normals, seeds, *args)
+    assert len(expected) > 20
+    np.testing.assert_array_equal(pairs, expected)

@@ -22,6 +22,7 @@ origin mid finger pads, +x the approach direction, +y the finger-closing axis,
 """
 
 import dataclasses as dc
+import math
 from typing import Protocol
 
 import numba
@@ -433,36 +434,12 @@ class AntipodalGraspSampler:
     ) -> np.ndarray:
         """Index pairs (i, j) of antipodal contacts, i among the seeds."""
         cfg = self.config
-        cos_cone = np.cos(np.arctan(cfg.friction_coefficient))
+        cos_cone = float(np.cos(np.arctan(cfg.friction_coefficient)))
         max_width = cfg.gripper.max_opening - 2.0 * self._margin
         seeds = rng.choice(seeds_pool, size=min(cfg.num_seeds, seeds_pool.size), replace=False)
-        pairs: list[np.ndarray] = []
-        for chunk in np.array_split(seeds, max(1, seeds.size // 64)):
-            offset = points[None, :, :] - points[chunk, None, :]  # (S, N, 3)
-            dist = np.linalg.norm(offset, axis=2)
-            along = np.einsum("snk,sk->sn", offset, normals[chunk])
-            perp = np.sqrt(np.maximum(dist**2 - along**2, 0.0))
-            with np.errstate(invalid="ignore", divide="ignore"):
-                direction = offset / dist[:, :, None]
-            cos_j = np.abs(np.einsum("snk,nk->sn", direction, normals))
-            valid = (
-                (perp <= self._line_tolerance)
-                & (dist >= cfg.min_width)
-                & (dist <= max_width)
-                & (np.abs(along) >= cos_cone * dist)
-                & (cos_j >= cos_cone)
-            )
-            s, n = np.nonzero(valid)
-            if s.size == 0:
-                continue
-            # One pair per seed and 1 cm width bin: the other contacts on the same
-            # line are the same surface sampled twice.
-            width_bin = np.floor(dist[s, n] / 0.01).astype(np.int64)
-            _, first = np.unique(np.stack([s, width_bin], 1), axis=0, return_index=True)
-            pairs.append(np.stack([chunk[s[first]], n[first]], axis=1))
-        if not pairs:
-            return np.zeros((0, 2), dtype=int)
-        return np.concatenate(pairs)
+        return _antipodal_pair_kernel(np.ascontiguousarray(points, dtype=float),
+                                      np.ascontiguousarray(normals, dtype=float), np.asarray(seeds, np.int64),
+                                      float(self._line_tolerance), float(cfg.min_width), float(max_width), cos_cone)
 
     def _clearance_ok(self, points: np.ndarray, X_WG: np.ndarray, width: np.ndarray,
                       normals: np.ndarray | None = None) -> np.ndarray:
@@ -495,6 +472,57 @@ class AntipodalGraspSampler:
             max(cfg.contact_band, self._spacing),
             cfg.min_tip_distance,
         )
+
+
+#: Width bins [m] of the antipodal pair search: one pair per seed and bin.
+PAIR_WIDTH_BIN = 0.01
+
+
+@numba.njit(cache=True)
+def _antipodal_pair_kernel(points, normals, seeds, line_tolerance, min_width, max_width, cos_cone):
+    """Index pairs (i, j) (P, 2) of antipodal contacts, i among ``seeds`` (in
+    their order): j lies within ``line_tolerance`` of the line through i along
+    its normal, ``min_width``..``max_width`` away, and both normals lie within
+    the friction cone (``cos_cone``) of the line i-j. One pair per seed and
+    ``PAIR_WIDTH_BIN`` of width, the lowest j (the other contacts on the same
+    line are the same surface sampled twice); per seed, widths ascending."""
+    n_bins = int(math.floor(max_width / PAIR_WIDTH_BIN)) + 1
+    out = np.empty((seeds.shape[0] * n_bins, 2), np.int64)
+    first = np.empty(n_bins, np.int64)
+    m = 0
+    for a in range(seeds.shape[0]):
+        i = seeds[a]
+        first[:] = -1
+        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+        nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
+        for j in range(points.shape[0]):
+            dx = points[j, 0] - px
+            dy = points[j, 1] - py
+            dz = points[j, 2] - pz
+            dist = math.sqrt(dx * dx + dy * dy + dz * dz)
+            # Each test as "not (passes)", so that a NaN normal fails it.
+            if not (min_width <= dist <= max_width):
+                continue
+            along = dx * nx + dy * ny + dz * nz
+            if not (abs(along) >= cos_cone * dist):
+                continue
+            perp2 = dist * dist - along * along
+            if perp2 < 0.0:
+                perp2 = 0.0
+            if not (math.sqrt(perp2) <= line_tolerance):
+                continue
+            if not (abs((dx / dist) * normals[j, 0] + (dy / dist) * normals[j, 1] + (dz / dist) * normals[j, 2])
+                    >= cos_cone):
+                continue
+            b = int(math.floor(dist / PAIR_WIDTH_BIN))
+            if first[b] < 0:
+                first[b] = j
+        for b in range(n_bins):
+            if first[b] >= 0:
+                out[m, 0] = i
+                out[m, 1] = first[b]
+                m += 1
+    return out[:m].copy()
 
 
 @numba.njit(cache=True, inline="always")
