@@ -443,34 +443,3 @@ def test_antipodal_pair_kernel_matches_the_dense_search(name: str) -> None:
     pairs = _antipodal_pair_kernel(crop, normals, seeds, *args)
     assert len(expected) > 20
     np.testing.assert_array_equal(pairs, expected)
-
-
-def test_swivel_seeds_find_an_elbow_that_clears_what_the_first_meets() -> None:
-    """IK from the current arm gives one elbow position per grasp; where it
-    collides, `ik_swivel_seeds` re-seed the upper arm's roll, and the first
-    free solution is used. Candidates already free keep their first solution."""
-    t = np.array([[0.5, 0.0, 0.8], [0.6, 0.1, 0.8]])
-    cands = GraspCandidates(_poses(t, np.zeros(2)), np.array([0.9, 0.8]), np.full(2, 0.05))
-    roll = layout.UPPERARM_ROLL
-
-    def swivel_ik(X_WG: np.ndarray, q_seed: np.ndarray):
-        """Keeps the seed's upper-arm roll (the elbow it starts from), puts the wrist at the pose."""
-        q = np.array(np.broadcast_to(q_seed, (len(X_WG), 11)), dtype=float)
-        q[:, 4], q[:, 5] = X_WG[:, 0, 3], X_WG[:, 1, 3]
-        return q, np.ones(len(X_WG), bool)
-
-    def elbow_down_collides(q: np.ndarray) -> np.ndarray:
-        return q[:, roll] > 1.0  # only an elbow rolled up clears the obstacle
-
-    q0 = np.zeros(11)
-    plain = select_grasp_goal(cands, q0, np.eye(4), np.zeros(3), swivel_ik, elbow_down_collides, None)
-    assert not plain.success and "collision" in plain.failure_reason
-    config = GraspRankingConfig(ik_swivel_seeds=[-1.5, 1.5])
-    goal = select_grasp_goal(cands, q0, np.eye(4), np.zeros(3), swivel_ik, elbow_down_collides, None, config)
-    assert goal.success and goal.candidate_index == 0
-    assert goal.q_pregrasp[roll] == 1.5 and goal.q_grasp[roll] == 1.5
-    # Where the first solution is free, the seeds change nothing.
-    free = select_grasp_goal(cands, q0, np.eye(4), np.zeros(3), swivel_ik, lambda q: np.ones(len(q), bool), None, config)
-    assert free.success and free.q_pregrasp[roll] == 0.0
-    with pytest.raises(ValueError, match="ik_swivel_seeds"):
-        GraspRankingConfig(ik_swivel_seeds=[float("nan")])

@@ -57,13 +57,6 @@ class GraspRankingConfig:
     #: When the capability map calls no candidate reachable, try IK on the
     #: ranked candidates anyway (the map's bins are coarser than IK).
     ik_when_unreachable: bool = True
-    #: Further IK seeds for the candidates without a collision-free solution
-    #: from the current arm: the current configuration with the upper arm
-    #: rolled to each of these angles [rad] in turn. The Fetch arm has seven
-    #: joints, so a gripper pose has a circle of elbow positions; IK seeded
-    #: from the current arm finds one of them, and another may clear an
-    #: obstacle the first passes through (a TV above the target's stand).
-    ik_swivel_seeds: list[float] = dc.field(default_factory=list)
 
     def __post_init__(self) -> None:
         self.validate()
@@ -75,8 +68,6 @@ class GraspRankingConfig:
         for name in ("approach_checks", "lift_checks"):
             if getattr(self, name) < 0:
                 raise ValueError(f"GraspRankingConfig.{name} must be >= 0, got {getattr(self, name)}")
-        if not all(np.isfinite(v) for v in self.ik_swivel_seeds):
-            raise ValueError(f"GraspRankingConfig.ik_swivel_seeds must be finite angles, got {self.ik_swivel_seeds}")
         if not (np.isfinite(self.min_lift_height) and self.min_lift_height >= 0.0):
             raise ValueError(f"GraspRankingConfig.min_lift_height must be finite and >= 0, got {self.min_lift_height}")
 
@@ -197,47 +188,6 @@ def rank_grasps(
     return diverse[np.argsort(-s_hat, kind="stable")], n_reachable
 
 
-def _arm_solutions(X_pre: np.ndarray, X_grasp: np.ndarray, q_seed: np.ndarray, solve_arm_ik: ArmIkFn,
-                   is_free: IsFreeFn, grasp_is_free: IsFreeFn, config: GraspRankingConfig, lift_height: float):
-    """Per candidate, from one arm seed q_seed (11,): the pre-grasp and grasp
-    configurations (K, 11), whether IK found both (K,), whether they are free
-    (`select_grasp_goal`'s checks) (K,), and the free lift height (K,; NaN
-    where unchecked)."""
-    n = X_grasp.shape[0]
-    # One batched IK call for the pre-grasps; each grasp is then seeded from its pre-grasp.
-    q_pre, ok_pre = solve_arm_ik(X_pre, q_seed)
-    q_grasp = np.tile(np.asarray(q_seed, dtype=float), (n, 1))
-    ok_grasp = np.zeros(n, dtype=bool)
-    if np.any(ok_pre):
-        q_grasp[ok_pre], ok_grasp[ok_pre] = solve_arm_ik(X_grasp[ok_pre], q_pre[ok_pre])
-    valid = ok_pre & ok_grasp
-    free = np.zeros(n, dtype=bool)
-    lift = np.full(n, np.nan)
-    if not np.any(valid):
-        return q_pre, q_grasp, valid, free, lift
-    free[valid] = np.asarray(is_free(q_pre[valid]), dtype=bool)
-    if config.check_grasp_collision:
-        free[valid] &= np.asarray(grasp_is_free(q_grasp[valid]), dtype=bool)
-        for s in np.arange(1, config.approach_checks + 1) / (config.approach_checks + 1):
-            check = valid & free
-            if not check.any():
-                break
-            q_mid = q_pre[check] + s * layout.wrap_configuration(q_grasp[check] - q_pre[check])
-            free[check] &= np.asarray(grasp_is_free(q_mid), dtype=bool)
-    if config.check_grasp_collision and lift_height > 0.0 and config.lift_checks:
-        lift[valid & free] = 0.0
-        for height in lift_height * np.arange(1, config.lift_checks + 1) / config.lift_checks:
-            check = valid & free & (lift >= height - lift_height / config.lift_checks - 1e-12)
-            if not check.any():
-                break
-            ok = np.asarray(grasp_is_free(layout.raised_torso(q_grasp[check], height)), dtype=bool)
-            lift[np.flatnonzero(check)[ok]] = height
-        # The torso stops at its upper limit: a grasp high up lifts only what is left.
-        lift = np.minimum(lift, layout.Q_UPPER[layout.TORSO] - q_grasp[:, layout.TORSO])
-        free &= ~(lift < min(config.min_lift_height, lift_height) - 1e-12)
-    return q_pre, q_grasp, valid, free, lift
-
-
 def select_grasp_goal(
     candidates: GraspCandidates,
     q_current: np.ndarray,
@@ -270,24 +220,38 @@ def select_grasp_goal(
         return fail("no grasp candidate is reachable from the current base (capability map)")
     X_grasp = candidates.X_WG[order]
     X_pre = pregrasp_poses(X_grasp, config.pregrasp_offset)
-    q_pre, q_grasp, valid, free, lift = _arm_solutions(X_pre, X_grasp, q_current, solve_arm_ik, is_free, grasp_is_free,
-                                                       config, lift_height)
-    ik_found = valid.copy()
-    for swivel in config.ik_swivel_seeds:
-        redo = np.flatnonzero(~(valid & free))
-        if redo.size == 0:
-            break
-        q_seed = np.array(q_current, dtype=float)
-        q_seed[layout.UPPERARM_ROLL] = swivel
-        again = _arm_solutions(X_pre[redo], X_grasp[redo], q_seed, solve_arm_ik, is_free, grasp_is_free, config,
-                               lift_height)
-        better = again[2] & again[3]
-        ik_found[redo] |= again[2]
-        for mine, theirs in zip((q_pre, q_grasp, valid, free, lift), again):
-            mine[redo[better]] = theirs[better]
-    if not np.any(ik_found):
+    # One batched IK call for the pre-grasps; each grasp is then seeded from its pre-grasp.
+    q_pre, ok_pre = solve_arm_ik(X_pre, q_current)
+    q_grasp = np.tile(np.asarray(q_current, dtype=float), (order.size, 1))
+    ok_grasp = np.zeros(order.size, dtype=bool)
+    if np.any(ok_pre):
+        q_grasp[ok_pre], ok_grasp[ok_pre] = solve_arm_ik(X_grasp[ok_pre], q_pre[ok_pre])
+    valid = ok_pre & ok_grasp
+    if not np.any(valid):
         why = "" if n_reachable else "; the capability map calls none reachable"
         return fail(f"IK failed for every ranked grasp (base and torso fixed{why})", n_reachable, order.size)
+    free = np.zeros(order.size, dtype=bool)
+    free[valid] = np.asarray(is_free(q_pre[valid]), dtype=bool)
+    if config.check_grasp_collision:
+        free[valid] &= np.asarray(grasp_is_free(q_grasp[valid]), dtype=bool)
+        for s in np.arange(1, config.approach_checks + 1) / (config.approach_checks + 1):
+            check = valid & free
+            if not check.any():
+                break
+            q_mid = q_pre[check] + s * layout.wrap_configuration(q_grasp[check] - q_pre[check])
+            free[check] &= np.asarray(grasp_is_free(q_mid), dtype=bool)
+    lift = np.full(order.size, np.nan)
+    if config.check_grasp_collision and lift_height > 0.0 and config.lift_checks:
+        lift[valid & free] = 0.0
+        for height in lift_height * np.arange(1, config.lift_checks + 1) / config.lift_checks:
+            check = valid & free & (lift >= height - lift_height / config.lift_checks - 1e-12)
+            if not check.any():
+                break
+            ok = np.asarray(grasp_is_free(layout.raised_torso(q_grasp[check], height)), dtype=bool)
+            lift[np.flatnonzero(check)[ok]] = height
+        # The torso stops at its upper limit: a grasp high up lifts only what is left.
+        lift = np.minimum(lift, layout.Q_UPPER[layout.TORSO] - q_grasp[:, layout.TORSO])
+        free &= ~(lift < min(config.min_lift_height, lift_height) - 1e-12)
     winners = np.flatnonzero(valid & free)
     if winners.size == 0:
         return fail("every IK-valid ranked grasp is in collision with the map", n_reachable, order.size)

@@ -39,8 +39,6 @@ THETA = 2
 TORSO = 3
 ARM = slice(4, 11)
 TORSO_ARM = slice(3, 11)
-#: The upper arm's roll: it swings the elbow about the shoulder-wrist line.
-UPPERARM_ROLL = ARM.start + ARM_JOINTS.index("upperarm_roll_joint")
 
 _INF = np.inf
 # Position limits. Continuous joints (theta, upperarm/forearm/wrist roll) are
