@@ -443,3 +443,24 @@ def test_antipodal_pair_kernel_matches_the_dense_search(name: str) -> None:
     pairs = _antipodal_pair_kernel(crop, normals, seeds, *args)
     assert len(expected) > 20
     np.testing.assert_array_equal(pairs, expected)
+
+
+def test_the_palm_keeps_the_margin_from_a_table() -> None:
+    """A side grasp of a block on a table: the palm's lower face 2 mm above
+    the table top is too close (the 4 mm margin), 6 mm above it is clear."""
+    from vamg_drake.policy.grasp_candidates import _frames_from_axes
+
+    g = np.arange(-0.3, 0.3001, 0.005)
+    table = np.stack(np.meshgrid(g, g, [0.0], indexing="ij"), -1).reshape(-1, 3)
+    xs, zs = np.arange(-0.02, 0.0201, 0.004), np.arange(0.0, 0.0801, 0.004)
+    faces = [np.stack(np.meshgrid(xs, [y], zs, indexing="ij"), -1).reshape(-1, 3) for y in (-0.03, 0.03)]
+    cloud = np.concatenate([table, *faces])
+    sampler = AntipodalGraspSampler()
+    half_palm = sampler.config.gripper.palm_height / 2
+
+    def clear(height: float) -> bool:
+        X = _frames_from_axes(np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]), np.array([[0, 0, height]]))
+        return bool(sampler._clearance_ok(cloud, X, np.array([0.06]))[0])
+
+    assert not clear(half_palm + 0.002)
+    assert clear(half_palm + 0.006)

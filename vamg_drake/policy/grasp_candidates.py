@@ -129,7 +129,9 @@ class AntipodalGraspConfig:
     line_tolerance: float = 0.004
     #: Thinnest graspable object [m]: a single surface has no thickness.
     min_width: float = 0.004
-    #: Clearance between an open finger and any point other than the object [m].
+    #: Clearance between an open finger or the palm and any point other than
+    #: the object [m] (the palm's faces too: a palm built flush with a table
+    #: top touches it).
     margin: float = 0.004
     #: How far the gripper travels along the approach before the grasp (pre-grasp offset).
     approach_distance: float = 0.05
@@ -559,7 +561,8 @@ def _clearance_kernel(
     min_tip_distance: float,
 ) -> np.ndarray:
     """Per candidate: no point in the closing sweep of the pads or the approach
-    sweep of the palm and open fingers, at least ``min_support`` points between
+    sweep of the palm and open fingers (both grown by ``margin``; on the pads'
+    inner side the margin is in ``width``), at least ``min_support`` points between
     the pads, and where the closing pads first touch the object (the points
     within ``contact_band`` of its extremes along +-y of G, on each side):
     normals in the friction cone of the closing axis (`cos_cone`), at least
@@ -588,10 +591,10 @@ def _clearance_kernel(
                         x_min = min(x_min, x)
                         y_pos = max(y_pos, y_signed)
                         y_neg = min(y_neg, y_signed)
-                    elif y <= half_open + finger_thickness:
+                    elif y <= half_open + finger_thickness + margin:
                         free = False
                         break
-            elif y <= half_open + finger_thickness and z <= 0.5 * palm_height:
+            elif y <= half_open + finger_thickness + margin and z <= 0.5 * palm_height + margin:
                 free = False
                 break
         if not free or support < min_support or y_pos <= 0.0 or y_neg >= 0.0:
