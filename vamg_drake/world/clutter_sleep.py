@@ -30,6 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vamg_drake.world.ycb import load_ycb_asset
+
 
 @dataclass
 class ClutterSleepConfig:
@@ -58,8 +60,6 @@ def sleeping_objects(scenario, config: ClutterSleepConfig | None = None,
     if not config.enabled:
         return []
     if bounding_radius is None:
-        from vamg_drake.world.ycb import load_ycb_asset
-
         def bounding_radius(model: str) -> float:
             return load_ycb_asset(model).bounding_radius
 
