@@ -156,3 +156,41 @@ def test_pregrasp_goal_straddling_the_target_is_approached_straight_from_behind(
     # Without the approach the goal is in collision for the planner.
     _, strict = outcomes[0.0]
     assert not strict.success and strict.reason == FailureReason.GOAL_IN_COLLISION
+
+
+def test_a_replan_on_the_approach_goes_straight_in_from_where_the_robot_is():
+    """Planned again with the gripper halfway along its straight approach (a
+    periodic replan, or the map's), the motion continues the approach; it does
+    not back out to the entry and start it again (which, replanned every
+    second, never arrives)."""
+    from vamg_drake.robot.kinematics import FetchKinematics
+
+    q_goal, p_WT, obj = _pregrasp_scene()
+
+    def plan_from(q: np.ndarray):
+        system = PlannerSystem(PlannerSystemConfig(approach_retreat=0.10,
+                                                   planner=PlannerConfig(attempt_wall_limit_s=5.0)))
+        context = system.CreateDefaultContext()
+        goal = SubgoalCommand(1, q_goal, "plan", Phase.PREGRASP, layout.GRIPPER_MAX_OPENING, np.full(2, np.nan))
+        system.GetInputPort("goal").FixValue(context, AbstractValue.Make(goal))
+        system.GetInputPort("point_map").FixValue(context, AbstractValue.Make(_snapshot(obj, 0)))
+        system.GetInputPort("robot_configuration").FixValue(context, q)
+        system.GetInputPort("target").FixValue(context, p_WT)
+        Simulator(system, context).AdvanceTo(0.05)
+        return system.GetOutputPort("trajectory").Eval(context)
+
+    first = plan_from(layout.stow_configuration(-1.5, 0.0, 0.0))
+    assert first.success and first.approach_index > 0
+    kin = FetchKinematics.instance()
+    p_goal = kin.gripper_pose(q_goal)[:3, 3]
+    approach = first.trajectory.q[first.approach_index:]
+    gaps = np.array([np.linalg.norm(kin.gripper_pose(q)[:3, 3] - p_goal) for q in approach])
+    q_mid = approach[np.flatnonzero(gaps >= 0.05)[-1]]  # the gripper 5 cm from its goal, coming in
+    start_gap = np.linalg.norm(kin.gripper_pose(q_mid)[:3, 3] - p_goal)
+
+    again = plan_from(q_mid)
+    assert again.success and again.approach_index == 0, again.reason
+    np.testing.assert_allclose(again.trajectory.q[0], q_mid, atol=1e-9)
+    np.testing.assert_allclose(again.trajectory.q[-1], q_goal, atol=1e-6)
+    gaps = [np.linalg.norm(kin.gripper_pose(q)[:3, 3] - p_goal) for q in again.trajectory.q]
+    assert max(gaps) <= start_gap + 1e-6  # never backs away from the goal

@@ -26,7 +26,7 @@ from vamg_drake.planning.sphere_collision import SphereCollisionChecker
 from vamg_drake.planning.motion_messages import MotionEvent, Phase, PlannedTrajectory, SubgoalCommand
 from vamg_drake.planning.smoothing import time_parametrize
 from vamg_drake.planning.trajectory import TimedTrajectory
-from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig, WholeBodyPlanner
+from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig, PlanResult, WholeBodyPlanner
 from vamg_drake.robot import layout
 from vamg_drake.robot.kinematics import FetchKinematics
 from vamg_drake.robot.spheres import SphereModel
@@ -401,7 +401,11 @@ class MotionSupervisor:
     def _plan_via_approach(self, w: "_Work", q: np.ndarray, q_goal: np.ndarray) -> tuple | None:
         """(plan result, approach index, distance): a plan to the approach's
         entry (`_approach_entry`) followed by the straight approach; None
-        without an entry or a plan to it."""
+        without an entry or a plan to it. A robot already on the approach
+        (`_on_approach`) goes straight in from where it is."""
+        straight = self._on_approach(w, q, q_goal)
+        if straight is not None:
+            return PlanResult(True, "", straight, {"total": 0.0}), 0, 0.0
         entry = self._approach_entry(w, q_goal)
         if entry is None:
             return None
@@ -419,6 +423,29 @@ class MotionSupervisor:
         joined = TimedTrajectory(np.concatenate([path.times, last.times[1:]]), np.concatenate([path.q, last.q[1:]]),
                                  stops=(*path.stops, entry_index))
         return dc.replace(to_entry, trajectory=joined), entry_index, entry[1]
+
+    def _on_approach(self, w: "_Work", q: np.ndarray, q_goal: np.ndarray) -> TimedTrajectory | None:
+        """The straight motion q -> q_goal when the robot is on its approach:
+        base and torso at the goal's, the gripper within `approach_retreat`
+        of the goal's, and the motion valid with the gripper's exemption. A
+        replan from there (periodic, or the map's) continues the approach
+        instead of backing out to its entry and starting it again."""
+        exempt = self.exempt_checker(w.inputs.p_WT)
+        if exempt is None or self.config.approach_retreat <= 0.0:
+            return None
+        offset = layout.wrap_configuration(np.asarray(q_goal, float) - q)
+        if np.max(np.abs(offset[: layout.TORSO + 1])) > self._ON_APPROACH_TOLERANCE:
+            return None
+        kinematics = FetchKinematics.instance()
+        gap = np.linalg.norm(kinematics.gripper_pose(q)[:3, 3] - kinematics.gripper_pose(q_goal)[:3, 3])
+        if gap > self.config.approach_retreat + self._ON_APPROACH_TOLERANCE:
+            return None
+        line = linear_trajectory(q, q_goal, 0.0, self.config.linear_speed_fraction)
+        return line if self.planner.path_is_valid(line.q, checker=exempt) else None
+
+    #: Base (m, rad) and torso (m) offsets from the goal's, and gripper slack
+    #: beyond `approach_retreat` [m], within which the robot is on its approach.
+    _ON_APPROACH_TOLERANCE = 0.02
 
     def _approach_entry(self, w: "_Work", q_goal: np.ndarray) -> tuple[np.ndarray, float] | None:
         """(configuration, distance): the gripper `approach_retreat` (or, where
@@ -539,8 +566,11 @@ class MotionSupervisor:
                 via = self._plan_via_approach(w, q, q_goal)
                 if via is not None:
                     result, approach_index, distance = via
-                    _log.info("motion t=%.2f: goal %d: planned to %.2f m back along the approach, then straight in",
-                              t, goal.goal_id, distance)
+                    if distance > 0.0:
+                        _log.info("motion t=%.2f: goal %d: planned to %.2f m back along the approach, then straight in",
+                                  t, goal.goal_id, distance)
+                    else:
+                        _log.info("motion t=%.2f: goal %d: on the approach; straight in from here", t, goal.goal_id)
         except Exception:  # noqa: BLE001 - a planner bug ends the episode as a recorded error (the judge)
             _log.error("WholeBodyPlanner t=%.2f: planner raised on goal %d:\n%s", t, goal.goal_id, traceback.format_exc())
             return PlannedTrajectory(goal.goal_id, None, False, EXCEPTION_REASON, revision,
