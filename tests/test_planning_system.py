@@ -124,21 +124,25 @@ def _pregrasp_scene():
     return q_goal, p_WT, obj
 
 
+def _plan_to_pregrasp(q: np.ndarray, retreat: float):
+    """(system, plan): a planner system's plan from q to `_pregrasp_scene`'s goal."""
+    q_goal, p_WT, obj = _pregrasp_scene()
+    system = PlannerSystem(PlannerSystemConfig(approach_retreat=retreat,
+                                               planner=PlannerConfig(attempt_wall_limit_s=5.0)))
+    context = system.CreateDefaultContext()
+    goal = SubgoalCommand(1, q_goal, "plan", Phase.PREGRASP, layout.GRIPPER_MAX_OPENING, np.full(2, np.nan))
+    system.GetInputPort("goal").FixValue(context, AbstractValue.Make(goal))
+    system.GetInputPort("point_map").FixValue(context, AbstractValue.Make(_snapshot(obj, 0)))
+    system.GetInputPort("robot_configuration").FixValue(context, q)
+    system.GetInputPort("target").FixValue(context, p_WT)
+    Simulator(system, context).AdvanceTo(0.05)
+    return system, system.GetOutputPort("trajectory").Eval(context)
+
+
 def test_pregrasp_goal_straddling_the_target_is_approached_straight_from_behind():
     q_goal, p_WT, obj = _pregrasp_scene()
     qs = layout.stow_configuration(-1.5, 0.0, 0.0)
-    outcomes = {}
-    for retreat in (0.10, 0.0):
-        system = PlannerSystem(PlannerSystemConfig(approach_retreat=retreat,
-                                                   planner=PlannerConfig(attempt_wall_limit_s=5.0)))
-        context = system.CreateDefaultContext()
-        goal = SubgoalCommand(1, q_goal, "plan", Phase.PREGRASP, layout.GRIPPER_MAX_OPENING, np.full(2, np.nan))
-        system.GetInputPort("goal").FixValue(context, AbstractValue.Make(goal))
-        system.GetInputPort("point_map").FixValue(context, AbstractValue.Make(_snapshot(obj, 0)))
-        system.GetInputPort("robot_configuration").FixValue(context, qs)
-        system.GetInputPort("target").FixValue(context, p_WT)
-        Simulator(system, context).AdvanceTo(0.05)
-        outcomes[retreat] = (system, system.GetOutputPort("trajectory").Eval(context))
+    outcomes = {retreat: _plan_to_pregrasp(qs, retreat) for retreat in (0.10, 0.0)}
     system, plan = outcomes[0.10]
     assert plan.success and plan.approach_index > 0, plan.reason
     np.testing.assert_allclose(plan.trajectory.q[-1], q_goal, atol=1e-6)
@@ -165,21 +169,8 @@ def test_a_replan_on_the_approach_goes_straight_in_from_where_the_robot_is():
     second, never arrives)."""
     from vamg_drake.robot.kinematics import FetchKinematics
 
-    q_goal, p_WT, obj = _pregrasp_scene()
-
-    def plan_from(q: np.ndarray):
-        system = PlannerSystem(PlannerSystemConfig(approach_retreat=0.10,
-                                                   planner=PlannerConfig(attempt_wall_limit_s=5.0)))
-        context = system.CreateDefaultContext()
-        goal = SubgoalCommand(1, q_goal, "plan", Phase.PREGRASP, layout.GRIPPER_MAX_OPENING, np.full(2, np.nan))
-        system.GetInputPort("goal").FixValue(context, AbstractValue.Make(goal))
-        system.GetInputPort("point_map").FixValue(context, AbstractValue.Make(_snapshot(obj, 0)))
-        system.GetInputPort("robot_configuration").FixValue(context, q)
-        system.GetInputPort("target").FixValue(context, p_WT)
-        Simulator(system, context).AdvanceTo(0.05)
-        return system.GetOutputPort("trajectory").Eval(context)
-
-    first = plan_from(layout.stow_configuration(-1.5, 0.0, 0.0))
+    q_goal, _, _ = _pregrasp_scene()
+    _, first = _plan_to_pregrasp(layout.stow_configuration(-1.5, 0.0, 0.0), 0.10)
     assert first.success and first.approach_index > 0
     kin = FetchKinematics.instance()
     p_goal = kin.gripper_pose(q_goal)[:3, 3]
@@ -188,7 +179,7 @@ def test_a_replan_on_the_approach_goes_straight_in_from_where_the_robot_is():
     q_mid = approach[np.flatnonzero(gaps >= 0.05)[-1]]  # the gripper 5 cm from its goal, coming in
     start_gap = np.linalg.norm(kin.gripper_pose(q_mid)[:3, 3] - p_goal)
 
-    again = plan_from(q_mid)
+    _, again = _plan_to_pregrasp(q_mid, 0.10)
     assert again.success and again.approach_index == 0, again.reason
     np.testing.assert_allclose(again.trajectory.q[0], q_mid, atol=1e-9)
     np.testing.assert_allclose(again.trajectory.q[-1], q_goal, atol=1e-6)
