@@ -59,15 +59,11 @@ def sleeping_objects(scenario, config: ClutterSleepConfig | None = None,
     config = config or ClutterSleepConfig()
     if not config.enabled:
         return []
-    if bounding_radius is None:
-        def bounding_radius(model: str) -> float:
-            return load_ycb_asset(model).bounding_radius
-
+    radius = bounding_radius or (lambda model: load_ycb_asset(model).bounding_radius)
     target = next(o for o in scenario.objects if o.name == scenario.target)
-    p_WT, r_T = np.asarray(target.xyz, dtype=float), bounding_radius(target.model or target.name)
+    p_WT, r_T = np.asarray(target.xyz, dtype=float), radius(target.model or target.name)
     return sorted(
         o.name for o in scenario.objects
         if o.name != scenario.target
-        and np.linalg.norm(np.asarray(o.xyz, dtype=float) - p_WT) - r_T - bounding_radius(o.model or o.name)
-        > config.awake_gap
+        and np.linalg.norm(np.asarray(o.xyz, dtype=float) - p_WT) - r_T - radius(o.model or o.name) > config.awake_gap
     )
