@@ -11,13 +11,20 @@ geometric source's own ranking of the same candidates:
 * ``top1_precision_heldout`` / ``geometric_top1_precision_heldout``: the
   success rate of the candidate each ranks first in each scene, among the
   candidates executed there (the geometric source's first choice is always
-  executed).
+  executed);
+* ``best_top1_precision_heldout``: the ceiling of any ranking of the executed
+  candidates (the scenes where at least one of them held).
 
 Speed (seeded, no data needed): ``inference_ms_256`` is `LearnedGraspScorer.score`
 for 256 geometric candidates on a can-on-a-table cloud (the grasp-frame crops
 and the NumPy forward pass: what re-ranking adds to the geometric source's
 ``propose``), median of ``--repeats``; the torch forward pass of the same
 weights is the reference in the same run (``torch_forward_ms_256``).
+
+BLAS and OpenMP run one thread (``OPENBLAS_NUM_THREADS`` and
+``OMP_NUM_THREADS`` default to 1, as an episode beside others gets one core):
+on a loaded 2-core machine BLAS's second thread made the 256-candidate
+forward pass ~10x slower. The JSON records the settings (``threads``).
 
 Usage: python benchmarks/bench_grasp_model.py [--json] [--data DIR] [--model FILE] [--repeats R]
 """
@@ -30,14 +37,18 @@ import os
 import time
 from pathlib import Path
 
-import numpy as np
-import torch
+THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")
+for _name in THREAD_VARIABLES:
+    os.environ.setdefault(_name, "1")
 
-from vamg_drake.bench.grasp_trials import load_dataset
-from vamg_drake.bench.grasp_training import GraspQualityNet, evaluate, torch_logits
-from vamg_drake.testing import synthetic_clouds as clouds
-from vamg_drake.policy.grasp_candidates import AntipodalGraspConfig, AntipodalGraspSampler
-from vamg_drake.policy.learned_grasps import (
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from vamg_drake.bench.grasp_trials import load_dataset  # noqa: E402
+from vamg_drake.bench.grasp_training import GraspQualityNet, evaluate, torch_logits  # noqa: E402
+from vamg_drake.testing import synthetic_clouds as clouds  # noqa: E402
+from vamg_drake.policy.grasp_candidates import AntipodalGraspConfig, AntipodalGraspSampler  # noqa: E402
+from vamg_drake.policy.learned_grasps import (  # noqa: E402
     DEFAULT_MODEL_PATH,
     GraspQualityModel,
     LearnedGraspScorer,
@@ -115,10 +126,12 @@ def main() -> None:
             "top1_precision_heldout": round(metrics["top1_precision"], 4),
             "geometric_auc_heldout": round(metrics["geometric_auc"], 4),
             "geometric_top1_precision_heldout": round(metrics["geometric_top1_precision"], 4),
+            "best_top1_precision_heldout": round(metrics["best_top1_precision"], 4),
         })
     else:
         result["quality"] = "skipped: no --data (or $VAMG_GRASP_DATA) grasp-trial directory"
     result.update(speed(model, args.repeats))
+    result["threads"] = {name: os.environ[name] for name in THREAD_VARIABLES}
     if not args.json:
         for k, v in result.items():
             print(f"{k:36s} {v}")

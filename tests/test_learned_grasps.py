@@ -19,7 +19,11 @@ from vamg_drake.bench.grasp_trials import (
 )
 from vamg_drake.bench.grasp_training import (
     GraspTrainingConfig,
+    blend_with_score,
     export,
+    fold_score_weight,
+    out_of_fold_logits,
+    select_score_weight,
     roc_auc,
     top1_precision,
     torch_logits,
@@ -122,6 +126,31 @@ def test_train_model_records_its_provenance_and_heldout_metrics() -> None:
     assert model.metadata["data_digest"] == "synthetic"
     assert model.metadata["heldout_samples"] == int(data.heldout.sum())
     assert set(metrics["heldout"]) >= {"auc", "top1_precision", "geometric_auc", "geometric_top1_precision"}
+
+
+def test_out_of_fold_logits_hold_out_whole_objects() -> None:
+    data = _synthetic_dataset()
+    data.objects = np.array([f"object_{i % 8}" for i in range(len(data))])
+    config = GraspTrainingConfig(point_layers=[16], head_layers=[8], epochs=15, batch_size=16, learning_rate=1e-2)
+    logits = out_of_fold_logits(data, config)
+    # The crop rule is learnable from other objects; the geometric score here is noise.
+    assert roc_auc(logits, data.success) > 0.8
+    weight, table = select_score_weight(data, logits, [0.0, 1.0, 100.0])
+    assert weight == 0.0 and table[100.0]["auc"] < table[0.0]["auc"] - 0.2, table
+    with pytest.raises(ValueError, match="objects"):
+        out_of_fold_logits(data.subset(np.isin(data.objects, ["object_0", "object_1"])), config)
+
+
+def test_a_folded_score_weight_ranks_as_the_blend() -> None:
+    data = _synthetic_dataset()
+    config = GraspTrainingConfig(point_layers=[16], head_layers=[8], epochs=3)
+    net, _ = train(data, config)
+    features = candidate_features(data.X_WG, data.width, data.score)
+    logits = torch_logits(net, data.crops, features)
+    fold_score_weight(net, 0.7, float(np.std(logits)), float(np.std(data.score)))
+    folded = torch_logits(net, data.crops, features)
+    blend = blend_with_score(logits, data.score, 0.7)
+    np.testing.assert_allclose((folded - folded.mean()) / np.std(logits), blend - blend.mean(), atol=1e-4)
 
 
 def test_metrics() -> None:

@@ -116,6 +116,8 @@ def grasp_frame_crops(p_WS: np.ndarray, X_WG: np.ndarray, config: GraspCropConfi
 
 #: Inputs beside the crop, per candidate (`candidate_features`).
 NUM_FEATURES = 5
+#: The column of `candidate_features` that holds the geometric score.
+SCORE_FEATURE = 1
 
 
 def candidate_features(X_WG: np.ndarray, width: np.ndarray, score: np.ndarray) -> np.ndarray:
