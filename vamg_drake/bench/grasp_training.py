@@ -10,6 +10,13 @@ Training is seeded and single-threaded by default (`torch.manual_seed`,
 give the same model file. Augmentation: the Fetch gripper and the physics
 are mirror-symmetric about G's x-z plane, so a crop reflected across y
 (with gravity's y component) keeps its label.
+
+Model selection holds out objects, never single trials: `train_model`
+scores every training sample with a network trained without its object
+(`out_of_fold_logits`), picks the weight of the geometric score blended into
+the network's logit on those scores (`select_score_weight`), and folds it
+into the final network's linear path (`fold_score_weight`). The held-out
+objects are only evaluated.
 """
 
 from __future__ import annotations
