@@ -440,7 +440,13 @@ class MotionSupervisor:
         gap = np.linalg.norm(kinematics.gripper_pose(q)[:3, 3] - kinematics.gripper_pose(q_goal)[:3, 3])
         if gap > self.config.approach_retreat + self._ON_APPROACH_TOLERANCE:
             return None
-        line = linear_trajectory(q, q_goal, 0.0, self.config.linear_speed_fraction)
+        return self._straight_motion(q, q_goal, exempt)
+
+    def _straight_motion(self, q_from: np.ndarray, q_to: np.ndarray,
+                         exempt: SphereCollisionChecker) -> TimedTrajectory | None:
+        """The straight (joint-space) motion q_from -> q_to at the linear
+        speed, if valid with the gripper's exemption; else None."""
+        line = linear_trajectory(q_from, q_to, 0.0, self.config.linear_speed_fraction)
         return line if self.planner.path_is_valid(line.q, checker=exempt) else None
 
     #: Base (m, rad) and torso (m) offsets from the goal's, and gripper slack
@@ -462,8 +468,7 @@ class MotionSupervisor:
             q_entry, ok = self._solve_arm(w, X[None], q_goal)
             if not ok[0]:
                 continue
-            segment = linear_trajectory(q_entry[0], q_goal, 0.0, self.config.linear_speed_fraction).q
-            if self.planner.path_is_valid(segment, checker=exempt):
+            if self._straight_motion(q_entry[0], q_goal, exempt) is not None:
                 return q_entry[0], distance
         return None
 
