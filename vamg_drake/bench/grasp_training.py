@@ -182,6 +182,11 @@ def top1_precision(score: np.ndarray, label: np.ndarray, group: np.ndarray) -> f
     return float(np.mean(hits)) if hits else float("nan")
 
 
+def _fold_count(config: GraspTrainingConfig) -> int:
+    """The object folds of `out_of_fold_logits` (at least 2)."""
+    return max(config.folds, 2)
+
+
 def out_of_fold_logits(data: GraspDataset, config: GraspTrainingConfig) -> np.ndarray:
     """Each sample's logit from a network trained without its object: the
     objects are dealt into ``config.folds`` folds (a seeded shuffle) and each
@@ -191,7 +196,7 @@ def out_of_fold_logits(data: GraspDataset, config: GraspTrainingConfig) -> np.nd
         ValueError: fewer objects than folds.
     """
     objects = np.unique(data.objects)
-    folds = max(config.folds, 2)
+    folds = _fold_count(config)
     if len(objects) < folds:
         raise ValueError(f"out_of_fold_logits: {len(objects)} objects, need at least {folds} (one per fold)")
     shuffled = np.random.default_rng(config.seed).permutation(objects)
@@ -258,7 +263,7 @@ def train_model(data: GraspDataset, config: GraspTrainingConfig | None = None, c
     train_set, heldout = data.subset(~data.heldout), data.subset(data.heldout)
     t0 = time.perf_counter()
     weight, blend_table = 0.0, {}
-    if config.score_weights and len(np.unique(train_set.objects)) >= max(config.folds, 2):
+    if config.score_weights and len(np.unique(train_set.objects)) >= _fold_count(config):
         weight, blend_table = select_score_weight(train_set, out_of_fold_logits(train_set, config), config.score_weights)
     net, history = train(train_set, config, progress)
     if weight:
