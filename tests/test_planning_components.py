@@ -147,7 +147,7 @@ def test_grid_dijkstra_matches_scipy():
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import dijkstra
 
-    from vamg_drake.planning.hybrid_astar import _dijkstra_2d
+    from vamg_drake.planning.hybrid_astar import grid_distances
 
     rng = np.random.default_rng(8)
     for _ in range(5):
@@ -167,6 +167,6 @@ def test_grid_dijkstra_matches_scipy():
                             w.append(0.1 * np.hypot(di, dj))
         graph = coo_matrix((w, (rows, cols)), shape=(nx * ny, nx * ny)).tocsr()
         want = dijkstra(graph, indices=gi * ny + gj).reshape(nx, ny)
-        got = _dijkstra_2d(free, gi, gj, 0.1)
+        got = grid_distances(free, gi, gj, 0.1)
         np.testing.assert_array_equal(np.isinf(got), np.isinf(want))
         np.testing.assert_allclose(got[np.isfinite(got)], want[np.isfinite(want)], rtol=0.0, atol=1e-9)

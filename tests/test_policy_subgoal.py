@@ -12,7 +12,7 @@ from vamg_drake.testing import synthetic_clouds as clouds
 from vamg_drake.perception.depth_points import DepthToPointsConfig
 from vamg_drake.policy.behaviour_tree import FailureCategory, MotionEvent, Phase, PolicyInputs, SubgoalBehaviour
 from vamg_drake.policy.kinematic_maps import KinematicMaps
-from vamg_drake.policy.pregrasp_sampler import BaseCostmap, CostmapConfig
+from vamg_drake.policy.pregrasp_sampler import BaseCostmap, CostmapConfig, PregraspSampler
 from vamg_drake.policy.subgoal_pipeline import SubgoalPipeline
 from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics, HeadCameraConfig
@@ -67,6 +67,47 @@ def test_costmap_follows_the_appendix_recipe() -> None:
     w_cells = ((1 - cm.cost[eligible]) ** 2).mean()
     w_samples = ((1 - np.exp(-cm.clearance_at(bases[:, :2]) / 2.0)) ** 2).mean()
     assert w_samples > w_cells
+
+
+def test_travel_distance_goes_around_a_divider() -> None:
+    """Path lengths over the costmap from the robot: a cell behind a divider is
+    reached through its gap, farther than a cell on the robot's side that is
+    nearer in a straight line; the robot's own tight spot does not trap it."""
+    walls = clouds.box_surface_cloud([0.0, 0.0, 0.1], [4.0, 3.0, 1.0], spacing=0.05)
+    walls = walls[np.isclose(walls[:, 0], 0) | np.isclose(walls[:, 0], 4) | np.isclose(walls[:, 1], 0)
+                  | np.isclose(walls[:, 1], 3)]
+    divider = np.stack(np.meshgrid(np.arange(0.0, 3.0, 0.05), [1.5], [0.1, 0.5, 1.0], indexing="ij"), -1).reshape(-1, 3)
+    cm = BaseCostmap.from_points(np.concatenate([walls, divider]), CostmapConfig(), robot_xy=np.array([0.5, 0.7]))
+    north, east = np.array([[0.5, 2.3]]), np.array([[2.5, 0.7]])
+    d = cm.travel_distance(np.array([0.5, 0.7]), 0.30)
+    assert cm.value_at(d, east)[0] == pytest.approx(2.0, abs=0.1)
+    # Around the divider's end at x = 3 (its gap is 1 m wide): at least 2 x 2.5 m + 0.8 m.
+    assert cm.value_at(d, north)[0] > 5.5
+    assert np.linalg.norm(north - [0.5, 0.7]) < np.linalg.norm(east - [0.5, 0.7])
+    # From 0.2 m off a wall (closer than the clearance) the robot still gets out.
+    d = cm.travel_distance(np.array([2.0, 0.2]), 0.30)
+    assert np.isfinite(cm.value_at(d, east)[0])
+    assert np.isinf(cm.value_at(d, np.array([[50.0, 50.0]]), outside=np.inf)[0])
+
+
+def test_pregrasp_bases_are_visited_nearest_first(pipeline) -> None:
+    """A target in the middle of a table is reachable from both long sides; the
+    robot east of the table gets an east-side pre-grasp from every seed, while
+    the bases in drawn order put it on the far side for some seeds."""
+    points, target = clouds.tabletop_scene(object_offset_xy=(0.0, 0.0))  # table x in [0.8, 1.4]
+    q0 = layout.stow_configuration(2.4, 0.0, np.pi)
+    is_free = pipeline.collision_fn(points, target, q0)
+    drawn_order = PregraspSampler(pipeline.maps, pipeline.ik, pipeline.visibility,
+                                  dc.replace(pipeline.pregrasp.config, order_bases_by_travel=False))
+    assert pipeline.pregrasp.config.order_bases_by_travel
+    near, drawn = [], []
+    for seed in range(8):
+        for sampler, xs in ((pipeline.pregrasp, near), (drawn_order, drawn)):
+            r = sampler.sample(points, target, q0, is_free, np.random.default_rng(seed))
+            assert r.success, r.failure_reason
+            xs.append(r.q[0])
+    assert min(near) > 1.4, near
+    assert min(drawn) < 0.8, drawn
 
 
 def test_pregrasp_samples_are_collision_free_ik_valid_and_see_the_target(pipeline, scene) -> None:
@@ -275,6 +316,7 @@ def test_pregrasp_proposal_is_the_pregrasp_of_its_accepted_grasp(scene) -> None:
             moves.append(np.max(np.abs(layout.wrap_configuration(grasp.q_goal - pre.q_goal))))
         gap[aimed] = max(moves)
     # The largest joint motion of the grasp-move [rad]: a small correction
-    # towards the re-detected grasp, not a flip of the wrist by pi.
-    assert gap[True] < 0.3
+    # towards the re-detected grasp (0.03-0.35 over seeds 0-7), not a flip
+    # of the wrist by pi.
+    assert gap[True] < 0.4
     assert gap[False] > 1.0

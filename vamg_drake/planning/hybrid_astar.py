@@ -225,9 +225,11 @@ def _poses_free(poses, layers, origin, h, margin, discs, band, exempt, exempt_r,
 
 
 @numba.njit(cache=True)
-def _dijkstra_2d(free, gi, gj, h):
-    """8-connected grid distances [m] from cell (gi, gj) over free cells
-    (a binary heap on flat arrays of (distance, cell), lazy deletion)."""
+def grid_distances(free, gi, gj, h):
+    """8-connected grid distances [m] from cell (gi, gj) over the True cells of
+    ``free`` with cell size ``h`` (inf where unreachable; all inf when the start
+    lies outside the grid). A binary heap on flat arrays of (distance, cell),
+    lazy deletion."""
     nx, ny = free.shape
     dist = np.full((nx, ny), np.inf)
     if not (0 <= gi < nx and 0 <= gj < ny):
@@ -735,7 +737,7 @@ class HybridAStar:
             coarse = _coarse_free(free, factor)
         gi, gj = cm.cell(goal)
         hc = factor * cm.resolution
-        d = _dijkstra_2d(coarse, gi // factor, gj // factor, hc)
+        d = grid_distances(coarse, gi // factor, gj // factor, hc)
         return d, factor, 2.0 * math.sqrt(2.0) * 0.5 * (factor - 1) * cm.resolution + math.sqrt(2.0) * hc
 
     def shortcut(self, poses: np.ndarray, rng: np.random.Generator, iterations: int = 20) -> np.ndarray:

@@ -28,6 +28,7 @@ from typing import Callable
 import numpy as np
 from scipy import ndimage
 
+from vamg_drake.planning.hybrid_astar import grid_distances
 from vamg_drake.policy.arm_chain import base_poses
 from vamg_drake.policy.ik import FastIk
 from vamg_drake.policy.kinematic_maps import KinematicMaps
@@ -151,12 +152,31 @@ class BaseCostmap:
 
     def clearance_at(self, p_xy: np.ndarray) -> np.ndarray:
         """Distance to the nearest obstacle cell at XY points (0 off the grid)."""
-        idx, inside = self.cell_of(p_xy)
-        return np.where(inside, self.distance[idx[:, 0], idx[:, 1]], 0.0)
+        return self.value_at(self.distance, p_xy, outside=0.0)
 
     def navigable_at(self, p_xy: np.ndarray) -> np.ndarray:
         idx, inside = self.cell_of(p_xy)
         return inside & self.navigable[idx[:, 0], idx[:, 1]]
+
+    def travel_distance(self, start_xy: np.ndarray, clearance: float) -> np.ndarray:
+        """Grid path lengths [m] from ``start_xy`` (nx, ny) over the navigable
+        cells at least ``clearance`` from obstacles, inf where unreachable (all
+        inf when the start lies outside the grid). The cells within
+        ``clearance`` of the start count as free: a robot parked beside a table
+        stands closer to it than ``clearance`` and must still be able to leave."""
+        idx, inside = self.cell_of(np.reshape(start_xy, (1, 2)))
+        if not inside[0]:
+            return np.full(self.distance.shape, np.inf)
+        i, j = (int(v) for v in idx[0])
+        near = np.linalg.norm(self.cell_centers() - self.cell_centers()[i, j], axis=-1) <= clearance
+        free = self.navigable & ((self.distance >= clearance) | near)
+        free[i, j] = True
+        return grid_distances(free, i, j, self.resolution)
+
+    def value_at(self, grid: np.ndarray, p_xy: np.ndarray, outside: float = np.inf) -> np.ndarray:
+        """``grid``'s (nx, ny) values at positions (K, 2) (``outside`` beyond the grid)."""
+        idx, inside = self.cell_of(p_xy)
+        return np.where(inside, grid[idx[:, 0], idx[:, 1]], outside)
 
     def sample_bases(
         self,
@@ -216,6 +236,16 @@ class PregraspConfig:
     #: the torso and lifts the object with it (`BehaviourConfig.lift_height`);
     #: a torso near its top lifted the object only 8 cm.
     lift_headroom: float = 0.15
+    #: Visit the sampled bases nearest first by path length over the costmap
+    #: from the robot (else in the order drawn). The first base that yields a
+    #: valid pre-grasp wins, so drawn order sent the robot to whichever side
+    #: of a table came first, and a goal invalidated by newly seen furniture
+    #: was replaced by one across the room; bases near the robot also lie in
+    #: space it has seen, so they are invalidated less often.
+    order_bases_by_travel: bool = True
+    #: Clearance from obstacles of the cells the travel distance runs over [m]
+    #: (the base's footprint radius).
+    travel_clearance: float = 0.30
 
     def __post_init__(self) -> None:
         self.validate()
@@ -229,6 +259,8 @@ class PregraspConfig:
             raise ValueError(f"PregraspConfig.ik_seed_arm must have 0 or 7 joints, got {len(self.ik_seed_arm)}")
         if len(self.base_radius) != 2 or not 0 <= self.base_radius[0] < self.base_radius[1]:
             raise ValueError(f"PregraspConfig.base_radius must be (min, max) with min < max, got {self.base_radius}")
+        if not self.travel_clearance >= 0.0:
+            raise ValueError(f"PregraspConfig.travel_clearance must be >= 0, got {self.travel_clearance}")
 
 
 @dc.dataclass(frozen=True)
@@ -348,6 +380,10 @@ class PregraspSampler:
         bases = costmap.sample_bases(p_WT, n_bases, cfg.base_radius, cfg.costmap.base_clearance, rng, cfg.weight_bases)
         if bases.shape[0] == 0:
             return fail("no navigable base cell within manipulation radius of the target (costmap)")
+        if cfg.order_bases_by_travel:
+            travel = costmap.value_at(costmap.travel_distance(q_current[:2], cfg.travel_clearance), bases[:, :2])
+            straight = np.linalg.norm(bases[:, :2] - q_current[:2], axis=1)
+            bases = bases[np.lexsort((straight, travel))]  # unreachable ones last, nearest first
         seed_arm = np.asarray(cfg.ik_seed_arm, float) if len(cfg.ik_seed_arm) else q_current[layout.ARM]
         fallback: PregraspResult | None = None  # the first valid, visible sample when `accept` passes none
         for base in bases:
