@@ -12,7 +12,7 @@ from vamg_drake.testing import synthetic_clouds as clouds
 from vamg_drake.perception.depth_points import DepthToPointsConfig
 from vamg_drake.policy.behaviour_tree import FailureCategory, MotionEvent, Phase, PolicyInputs, SubgoalBehaviour
 from vamg_drake.policy.kinematic_maps import KinematicMaps
-from vamg_drake.policy.pregrasp_sampler import BaseCostmap, CostmapConfig, PregraspSampler
+from vamg_drake.policy.pregrasp_sampler import BaseCostmap, CostmapConfig, PregraspConfig, PregraspSampler
 from vamg_drake.policy.subgoal_pipeline import SubgoalPipeline
 from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics, HeadCameraConfig
@@ -108,6 +108,31 @@ def test_pregrasp_bases_are_visited_nearest_first(pipeline) -> None:
             xs.append(r.q[0])
     assert min(near) > 1.4, near
     assert min(drawn) < 0.8, drawn
+
+
+def test_pregrasp_bases_near_a_tried_base_come_last() -> None:
+    """Asked again from the pre-grasp goal it reached (the grasp stage found no
+    grasp there), the pipeline proposes a base away from it: nearest first
+    alone would return to the same spot and the same views."""
+    points, target = clouds.tabletop_scene(object_offset_xy=(0.0, 0.0))
+    dense = points[np.linalg.norm(points - target, axis=1) < 0.3]
+    q0 = layout.stow_configuration(2.4, 0.0, np.pi)
+    radius = PregraspConfig().tried_radius
+    for seed in range(3):
+        p = SubgoalPipeline(KinematicMaps.load_or_build(), HeadCameraConfig(), DepthToPointsConfig().depth_max,
+                            seed=seed)
+        first = p.sample_pregrasp(PolicyInputs(0.0, q0, points, target, dense))
+        assert first.success, first.failure_reason
+        again = p.sample_pregrasp(PolicyInputs(5.0, first.q_goal, points, target, dense))
+        assert again.success, again.failure_reason
+        assert np.linalg.norm(again.q_goal[:2] - first.q_goal[:2]) > radius
+        # The sampler itself: without the tried base, the nearest base is next to it.
+        is_free = p.collision_fn(points, target, first.q_goal)
+        plain = p.pregrasp.sample(points, target, first.q_goal, is_free, np.random.default_rng(seed))
+        assert np.linalg.norm(plain.q[:2] - first.q_goal[:2]) <= radius
+        tried = p.pregrasp.sample(points, target, first.q_goal, is_free, np.random.default_rng(seed),
+                                  tried_xy=first.q_goal[None, :2])
+        assert np.linalg.norm(tried.q[:2] - first.q_goal[:2]) > radius
 
 
 def test_pregrasp_samples_are_collision_free_ik_valid_and_see_the_target(pipeline, scene) -> None:

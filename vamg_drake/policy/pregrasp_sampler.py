@@ -246,6 +246,13 @@ class PregraspConfig:
     #: Clearance from obstacles of the cells the travel distance runs over [m]
     #: (the base's footprint radius).
     travel_clearance: float = 0.30
+    #: Bases within this distance of a tried base (a pre-grasp goal reached
+    #: without a grasp: `sample`'s ``tried_xy``) come after all others: from
+    #: there the camera sees what it saw, and nearest first would return
+    #: to the same side of the target every time [m].
+    tried_radius: float = 0.5
+    #: A robot within this distance of its last pre-grasp goal's base has reached it [m].
+    reached_tolerance: float = 0.15
 
     def __post_init__(self) -> None:
         self.validate()
@@ -259,8 +266,9 @@ class PregraspConfig:
             raise ValueError(f"PregraspConfig.ik_seed_arm must have 0 or 7 joints, got {len(self.ik_seed_arm)}")
         if len(self.base_radius) != 2 or not 0 <= self.base_radius[0] < self.base_radius[1]:
             raise ValueError(f"PregraspConfig.base_radius must be (min, max) with min < max, got {self.base_radius}")
-        if not self.travel_clearance >= 0.0:
-            raise ValueError(f"PregraspConfig.travel_clearance must be >= 0, got {self.travel_clearance}")
+        for name in ("travel_clearance", "tried_radius", "reached_tolerance"):
+            if not getattr(self, name) >= 0.0:
+                raise ValueError(f"PregraspConfig.{name} must be >= 0, got {getattr(self, name)}")
 
 
 @dc.dataclass(frozen=True)
@@ -335,6 +343,7 @@ class PregraspSampler:
         costmap: BaseCostmap | None = None,
         ee_poses: np.ndarray | None = None,
         accept: Callable[[np.ndarray], bool] | None = None,
+        tried_xy: np.ndarray | None = None,
     ) -> PregraspResult:
         """Samples a pre-grasp configuration for target ``p_WT`` under map points ``p_WM``.
 
@@ -354,6 +363,9 @@ class PregraspSampler:
                 `PregraspConfig.max_accept_tests` per base are tested, and the
                 first valid, visible sample is returned when none passes (a
                 closer view may still bring better grasps).
+            tried_xy: (K, 2) bases tried before: with `order_bases_by_travel`,
+                drawn bases within `PregraspConfig.tried_radius` of one are
+                visited last.
         """
         t0 = time.perf_counter()
         cfg = self.config
@@ -383,7 +395,11 @@ class PregraspSampler:
         if cfg.order_bases_by_travel:
             travel = costmap.value_at(costmap.travel_distance(q_current[:2], cfg.travel_clearance), bases[:, :2])
             straight = np.linalg.norm(bases[:, :2] - q_current[:2], axis=1)
-            bases = bases[np.lexsort((straight, travel))]  # unreachable ones last, nearest first
+            tried = np.zeros(len(bases), dtype=bool)
+            if tried_xy is not None and len(tried_xy):
+                gap = np.linalg.norm(bases[:, None, :2] - np.asarray(tried_xy, float)[None, :, :2], axis=2)
+                tried = gap.min(axis=1) <= cfg.tried_radius
+            bases = bases[np.lexsort((straight, travel, tried))]  # untried first, then nearest, unreachable last
         seed_arm = np.asarray(cfg.ik_seed_arm, float) if len(cfg.ik_seed_arm) else q_current[layout.ARM]
         fallback: PregraspResult | None = None  # the first valid, visible sample when `accept` passes none
         for base in bases:

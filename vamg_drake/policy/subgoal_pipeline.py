@@ -128,14 +128,17 @@ class SubgoalPipelineConfig:
 class PipelineMemory:
     """The `SubgoalPipeline`'s memory between samples (`SamplerMemory`): its
     and its IK's random generator states, the grasp its last pre-grasp was
-    aimed at, and its collision check of the last map (reused while the map
-    and the base stay the same)."""
+    aimed at, its collision check of the last map (reused while the map
+    and the base stay the same), the base (x, y) of its last pre-grasp goal
+    and the pre-grasp bases reached without a grasp."""
 
     rng: dict
     ik_rng: dict
     aimed_grasp: tuple | None
     collision_key: tuple | None
     collision_fns: tuple | None
+    last_pregrasp_base: tuple | None = None
+    tried_bases: tuple = ()
 
 
 class SubgoalPipeline:
@@ -188,6 +191,8 @@ class SubgoalPipeline:
         self._aimed_grasp: tuple | None = None  # (q_pregrasp, X_WG) the last pre-grasp was accepted for
         self._cache_key: tuple | None = None
         self._cache: tuple | None = None
+        self._last_pregrasp_base: tuple | None = None  # (x, y) of the last pre-grasp goal
+        self._tried_bases: tuple = ()  # (x, y) of pre-grasp goals reached without a grasp
 
     def samplers(self) -> SubgoalSamplers:
         return SubgoalSamplers(self._timed("subgoal_grasp", self.sample_grasp),
@@ -197,13 +202,14 @@ class SubgoalPipeline:
     def save_state(self) -> "PipelineMemory":
         """`SamplerMemory`: what the samplers' next answers depend on besides their inputs."""
         return PipelineMemory(self.rng.bit_generator.state, self.ik.rng.bit_generator.state, self._aimed_grasp,
-                              self._cache_key, self._cache)
+                              self._cache_key, self._cache, self._last_pregrasp_base, self._tried_bases)
 
     def load_state(self, state: "PipelineMemory") -> None:
         """`SamplerMemory`: restores a `save_state`."""
         self.rng.bit_generator.state = state.rng
         self.ik.rng.bit_generator.state = state.ik_rng
         self._aimed_grasp, self._cache_key, self._cache = state.aimed_grasp, state.collision_key, state.collision_fns
+        self._last_pregrasp_base, self._tried_bases = state.last_pregrasp_base, state.tried_bases
         self._candidates = None
 
     def _timed(self, name: str, sampler):
@@ -373,6 +379,11 @@ class SubgoalPipeline:
             return SubgoalProposal.failure(problem, FailureCategory.PERCEPTION)
         costmap = BaseCostmap.from_points(p_WM, self.config.pregrasp.costmap,
                                           include_xy=np.stack([p_WT[:2], q[:2]]), robot_xy=q[:2])
+        last = self._last_pregrasp_base
+        if last is not None and np.linalg.norm(q[:2] - last) <= self.config.pregrasp.reached_tolerance:
+            # Asked again from the last pre-grasp goal: the grasp stage found
+            # no grasp there, so bases near it (the same views) come last.
+            self._tried_bases = self._tried_bases + (last,)
         ee_poses, accept = None, None
         aimed_pregrasp = None  # (accepted sample, its grasp's pre-grasp configuration, its head pan/tilt)
         is_free = self.collision_fn(p_WM, p_WT, q)  # its crop covers the target's surroundings
@@ -411,10 +422,12 @@ class SubgoalPipeline:
                     return True
 
         result = self.pregrasp.sample(p_WM, p_WT, q, is_free, self.rng, costmap=costmap,
-                                      ee_poses=ee_poses, accept=accept)
+                                      ee_poses=ee_poses, accept=accept,
+                                      tried_xy=np.array(self._tried_bases).reshape(-1, 2))
         if not result.success:
             category = FailureCategory.REACHABILITY if result.funnel["ik"] == 0 else FailureCategory.SUBGOAL
             return SubgoalProposal.failure(result.failure_reason, category)
+        self._last_pregrasp_base = (float(result.q[0]), float(result.q[1]))
         if aimed_pregrasp is not None:
             sample, q_aimed, head = aimed_pregrasp
             if np.allclose(sample, result.q):
