@@ -168,7 +168,8 @@ class BaseCostmap:
         if not inside[0]:
             return np.full(self.distance.shape, np.inf)
         i, j = (int(v) for v in idx[0])
-        near = np.linalg.norm(self.cell_centers() - self.cell_centers()[i, j], axis=-1) <= clearance
+        centers = self.cell_centers()
+        near = np.linalg.norm(centers - centers[i, j], axis=-1) <= clearance
         free = self.navigable & ((self.distance >= clearance) | near)
         free[i, j] = True
         return grid_distances(free, i, j, self.resolution)
