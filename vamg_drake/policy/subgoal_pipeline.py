@@ -384,6 +384,7 @@ class SubgoalPipeline:
             # Asked again from the last pre-grasp goal: the grasp stage found
             # no grasp there, so bases near it (the same views) come last.
             self._tried_bases = self._tried_bases + (last,)
+            self._last_pregrasp_base = None  # recorded once
         ee_poses, accept = None, None
         aimed_pregrasp = None  # (accepted sample, its grasp's pre-grasp configuration, its head pan/tilt)
         is_free = self.collision_fn(p_WM, p_WT, q)  # its crop covers the target's surroundings
