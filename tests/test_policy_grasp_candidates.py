@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 from vamg_drake.testing import synthetic_clouds as clouds
-from vamg_drake.policy.grasp_candidates import AntipodalGraspConfig, AntipodalGraspSampler, GraspCandidates
+from vamg_drake.policy.grasp_candidates import (
+    AntipodalGraspConfig,
+    AntipodalGraspSampler,
+    GraspCandidates,
+    GripperGeometry,
+    gripper_lowest_z,
+)
 from vamg_drake.policy.grasp_ranking import (
     GraspRankingConfig,
     farthest_pose_sampling,
@@ -464,3 +470,43 @@ def test_the_palm_keeps_the_margin_from_a_table() -> None:
 
     assert not clear(half_palm + 0.002)
     assert clear(half_palm + 0.006)
+
+
+def _low_can_at_a_table_edge(z_table: float, spacing: float = 0.003) -> np.ndarray:
+    """The points of a tuna can (8.6 cm across, 3.3 cm high) standing at the
+    +x edge of a table top, as a map of several views holds them: the top
+    face, the side facing -x, and the table top up to its edge 2 mm behind
+    the can, except under the can."""
+    radius, height = 0.043, 0.033
+    g = np.arange(-0.3, 0.3 + 1e-9, spacing)
+    xy = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+    top = xy[np.linalg.norm(xy, axis=1) <= radius]
+    top = np.column_stack([top, np.full(len(top), z_table + height)])
+    a, z = np.meshgrid(np.linspace(0, 2 * np.pi, 90, endpoint=False), np.arange(spacing, height, spacing))
+    side = np.column_stack([radius * np.cos(a.ravel()), radius * np.sin(a.ravel()), z_table + z.ravel()])
+    side = side[side[:, 0] < 0.0]
+    table = xy[(np.linalg.norm(xy, axis=1) > radius) & (xy[:, 0] <= radius + 0.002)]
+    return np.concatenate([top, side, np.column_stack([table, np.full(len(table), z_table)])])
+
+
+def test_the_gripper_stays_above_the_support_of_a_low_object() -> None:
+    """A low can at a table edge: its top face and the table top beside it
+    have parallel normals and look antipodal, and approached from beyond the
+    edge such a grasp meets no point. But its lower finger would pass
+    through the table under the can: no candidate's open fingers or palm
+    reach below the table top, and every contact lies on the can."""
+    z_table = 0.94
+    cloud = _low_can_at_a_table_edge(z_table)
+    center = np.array([0.0, 0.0, z_table + 0.0165])
+    g = AntipodalGraspSampler().propose(cloud, center)
+    assert len(g) > 0, g.failure_reason
+    _assert_valid_frames(g)
+    lowest = gripper_lowest_z(g.X_WG, GripperGeometry(), AntipodalGraspConfig().approach_distance)
+    assert np.all(lowest > z_table), np.round(np.sort(lowest)[:5], 3)
+    # Straight down, the fingertips are the lowest point.
+    down = _top_down(0.3, np.array([0.0, 0.0, 1.0]))
+    assert gripper_lowest_z(down[None], GripperGeometry(), 0.05)[0] == pytest.approx(1.0 - GripperGeometry().fingertip_x)
+    # Every contact lies on the can, none on the table beside it.
+    contacts = g.X_WG[:, None, :3, 3] + np.array([-0.5, 0.5])[None, :, None] * (
+        g.width[:, None, None] * g.X_WG[:, None, :3, 1])
+    assert np.all(contacts[..., 2] > z_table + 0.005)

@@ -239,6 +239,24 @@ def estimate_normals_open3d(points: np.ndarray, k: int) -> np.ndarray:
     return np.asarray(cloud.normals)
 
 
+def gripper_lowest_z(X_WG: np.ndarray, gripper: GripperGeometry, approach_distance: float) -> np.ndarray:
+    """The lowest world height (K,) of the open fingers and the palm at grasps
+    X_WG (K, 4, 4), each swept back ``approach_distance`` along its approach
+    (the boxes of `_clearance_kernel`, from their corners)."""
+    g = gripper
+    x_pads = g.fingertip_x - g.finger_length
+    hy = 0.5 * g.max_opening + g.finger_thickness
+    boxes = ((x_pads - approach_distance, g.fingertip_x, 0.5 * g.finger_width),  # fingers: x_lo, x_hi, z half
+             (x_pads - g.palm_depth - approach_distance, x_pads, 0.5 * g.palm_height))  # palm
+    r = np.asarray(X_WG, dtype=float).reshape(-1, 4, 4)[:, 2, :]  # world z of G's axes and origin
+    lowest = np.full(r.shape[0], np.inf)
+    for x_lo, x_hi, hz in boxes:
+        xm, hx = 0.5 * (x_lo + x_hi), 0.5 * (x_hi - x_lo)
+        z = r[:, 3] + r[:, 0] * xm - np.abs(r[:, 0]) * hx - np.abs(r[:, 1]) * hy - np.abs(r[:, 2]) * hz
+        lowest = np.minimum(lowest, z)
+    return lowest
+
+
 def _frames_from_axes(x_axis: np.ndarray, y_axis: np.ndarray, origin: np.ndarray) -> np.ndarray:
     X = np.zeros((x_axis.shape[0], 4, 4))
     X[:, :3, 0] = x_axis
@@ -277,12 +295,16 @@ class AntipodalGraspSampler:
                 f"{cfg.grasp_radius} m (need {cfg.min_points})"
             )
         normals = self._prepare(crop)
-        families = [self._antipodal_family(crop, normals, near, rng), self._top_down_family(crop, near, p_WT)]
+        # The support: the plane under the target (a table top), as the collision model sees it.
+        z_support = support_height(crop, p_WT, cfg.grasp_radius)
+        on_object = crop[:, 2] > z_support + max(self._spacing, cfg.voxel_size)
+        families = [self._antipodal_family(crop, normals, near, on_object, rng),
+                    self._top_down_family(crop, near & on_object, p_WT, z_support)]
         families = [f for f in families if f is not None]
         if not families:
             return GraspCandidates.empty("no antipodal contact pair within the gripper opening near the target")
         x_axis, y_axis, center, width, quality = (np.concatenate(a) for a in zip(*families))
-        X_WG, ok, offset = self._clear_frames(crop, normals, x_axis, y_axis, center, width)
+        X_WG, ok, offset = self._clear_frames(crop, normals, x_axis, y_axis, center, width, z_support)
         if not np.any(ok):
             return GraspCandidates.empty("every antipodal grasp collides with the observed cloud (no finger clearance)")
         X_WG, width, quality, center, offset = X_WG[ok], width[ok], quality[ok], center[ok], offset[ok]
@@ -292,14 +314,22 @@ class AntipodalGraspSampler:
         order = np.argsort(-score, kind="stable")[: cfg.max_candidates]
         return GraspCandidates(X_WG[order], score[order], width[order])
 
-    def _antipodal_family(self, crop: np.ndarray, normals: np.ndarray, near: np.ndarray,
+    def _antipodal_family(self, crop: np.ndarray, normals: np.ndarray, near: np.ndarray, on_object: np.ndarray,
                           rng: np.random.Generator) -> tuple | None:
         """(approach x, closing y, contact centre, width, quality) per grasp, each
-        antipodal pair spun through ``num_approaches``; None without a pair."""
+        antipodal pair spun through ``num_approaches``; None without a pair.
+
+        Both contacts lie above the support surface (`on_object`): a point of
+        the table top is not a contact on the object, and a low object's top
+        face paired with the table beside it looks perfectly antipodal (both
+        normals vertical) while its lower finger would have to pass through
+        the table."""
         cfg = self.config
-        pairs = self._antipodal_pairs(crop, normals, np.flatnonzero(near), rng)
+        objects = np.flatnonzero(on_object)
+        pairs = self._antipodal_pairs(crop[objects], normals[objects], np.flatnonzero(near[objects]), rng)
         if pairs.shape[0] == 0:
             return None
+        pairs = objects[pairs]
         i, j = pairs[:, 0], pairs[:, 1]
         p1, p2 = crop[i], crop[j]
         width = np.linalg.norm(p2 - p1, axis=1)
@@ -325,16 +355,17 @@ class AntipodalGraspSampler:
         rep = lambda a: np.repeat(a, cfg.num_approaches, axis=0)  # noqa: E731
         return x_axis, rep(y_axis), rep(center), rep(width), rep(quality)
 
-    def _top_down_family(self, crop: np.ndarray, near: np.ndarray, p_WT: np.ndarray) -> tuple | None:
-        """Top-down grasps of the target's cluster (``top_down_yaws``), in the
-        form of `_antipodal_family`; None when there are none."""
+    def _top_down_family(self, crop: np.ndarray, above: np.ndarray, p_WT: np.ndarray,
+                         z_support: float) -> tuple | None:
+        """Top-down grasps of the target's cluster (``top_down_yaws``) among
+        the points `above` (within ``grasp_radius``, above the support at
+        `z_support`), in the form of `_antipodal_family`; None when there are none."""
         cfg = self.config
         if cfg.top_down_yaws < 1:
             return None
-        cluster = self._target_cluster(crop, near, p_WT)
-        if cluster is None:
+        points = self._target_cluster(crop[above], p_WT)
+        if points is None:
             return None
-        points, z_support = cluster
         # Yaws from the cluster's major horizontal axis: with top_down_yaws
         # divisible by 4 the set closes along both principal axes, where a
         # box's faces (not its corners) meet the pads first.
@@ -360,21 +391,15 @@ class AntipodalGraspSampler:
         x_axis = np.tile([0.0, 0.0, -1.0], (int(keep.sum()), 1))
         return x_axis, y_axis[keep], center[keep], width[keep], np.full(int(keep.sum()), cfg.top_down_quality)
 
-    def _target_cluster(self, crop: np.ndarray, near: np.ndarray, p_WT: np.ndarray) -> tuple[np.ndarray, float] | None:
-        """The target's points (those within ``grasp_radius`` linked to its
-        nearest point, above its support surface) and the support's height
-        (-inf when none is seen); None when too few."""
+    def _target_cluster(self, above: np.ndarray, p_WT: np.ndarray) -> np.ndarray | None:
+        """The target's points: those of `above` (the points within
+        ``grasp_radius`` above the support) linked to its nearest point; None
+        when too few."""
         cfg = self.config
-        local = crop[near]
-        if local.shape[0] < cfg.min_points:
-            return None
-        # The support: the plane under the target (a table top), as the collision model sees it.
-        z_support = support_height(crop, p_WT, cfg.grasp_radius)
-        above = local[local[:, 2] > z_support + max(self._spacing, cfg.voxel_size)]
         if above.shape[0] < cfg.min_support:
             return None
         points = above[component_nearest(above, p_WT, cfg.cluster_link * max(self._spacing, cfg.voxel_size))]
-        return (points, z_support) if points.shape[0] >= cfg.min_support else None
+        return points if points.shape[0] >= cfg.min_support else None
 
     def verify(self, p_WS: np.ndarray, p_WT: np.ndarray, X_WG: np.ndarray, width: np.ndarray) -> np.ndarray:
         """Whether grasps X_WG (K, 4, 4) of object widths `width` (K,), proposed
@@ -387,7 +412,8 @@ class AntipodalGraspSampler:
         if np.count_nonzero(near) < self.config.min_points:
             return np.zeros(X_WG.shape[0], dtype=bool)
         normals = self._prepare(crop)
-        return self._clearance_ok(crop, X_WG, np.asarray(width, dtype=float).reshape(-1), normals)
+        return self._clearance_ok(crop, X_WG, np.asarray(width, dtype=float).reshape(-1), normals,
+                                  support_height(crop, p_WT, self.config.grasp_radius))
 
     def _crop(self, p_WS: np.ndarray, p_WT: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The finite points within `crop_radius` of the target, voxel-downsampled,
@@ -412,17 +438,18 @@ class AntipodalGraspSampler:
         return estimate_normals_open3d(crop, cfg.normal_neighbours)
 
     def _clear_frames(self, points: np.ndarray, normals: np.ndarray, x_axis: np.ndarray, y_axis: np.ndarray,
-                      center: np.ndarray, width: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                      center: np.ndarray, width: np.ndarray,
+                      z_support: float = -np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Grasp frames X_WG (K, 4, 4) with the contacts at the first of
-        ``contact_offsets`` where the gripper clears the cloud, whether one does
-        (K,), and that offset (K,)."""
+        ``contact_offsets`` where the gripper clears the cloud and the support
+        surface at `z_support`, whether one does (K,), and that offset (K,)."""
         X_WG = np.empty((x_axis.shape[0], 4, 4))
         ok = np.zeros(x_axis.shape[0], dtype=bool)
         offset = np.zeros(x_axis.shape[0])
         todo = np.arange(x_axis.shape[0])
         for contact_x in self.config.contact_offsets:
             X = _frames_from_axes(x_axis[todo], y_axis[todo], center[todo] - contact_x * x_axis[todo])
-            clear = self._clearance_ok(points, X, width[todo], normals)
+            clear = self._clearance_ok(points, X, width[todo], normals, z_support)
             X_WG[todo] = X
             ok[todo[clear]] = True
             offset[todo] = contact_x
@@ -444,9 +471,12 @@ class AntipodalGraspSampler:
                                       float(self._line_tolerance), float(cfg.min_width), float(max_width), cos_cone)
 
     def _clearance_ok(self, points: np.ndarray, X_WG: np.ndarray, width: np.ndarray,
-                      normals: np.ndarray | None = None) -> np.ndarray:
+                      normals: np.ndarray | None = None, z_support: float = -np.inf) -> np.ndarray:
         """True where the fingers' closing sweep and the palm's approach sweep are
-        point-free and the pads' first contacts hold (`_clearance_kernel`); without
+        point-free and the pads' first contacts hold (`_clearance_kernel`), and
+        the open fingers and the palm stay above the support surface at
+        `z_support` (the table top continues under the object and in its
+        occlusion shadow, where the cloud has no point to collide with); without
         `normals` the first contacts' friction-cone test is skipped."""
         cfg = self.config
         g = cfg.gripper
@@ -455,7 +485,8 @@ class AntipodalGraspSampler:
             cos_cone = -1.0  # every point's normal qualifies
         else:
             cos_cone = float(np.cos(np.arctan(cfg.contact_friction_coefficient)))
-        return _clearance_kernel(
+        above = gripper_lowest_z(X_WG, g, cfg.approach_distance) >= z_support
+        return above & _clearance_kernel(
             np.ascontiguousarray(points),
             np.ascontiguousarray(normals, dtype=float),
             cos_cone,
