@@ -50,7 +50,7 @@ CENTER = np.array([1.0, 0.0, 0.7])
 
 #: A trial whose executed candidates both hold and drop the object (found by
 #: running the collector; the labels come from Drake's deterministic physics).
-MIXED_TRIAL = dict(index=0, seed=0, object_name="tomato_soup_can")
+MIXED_TRIAL = dict(index=1, seed=0, object_name="mustard_bottle")
 
 
 def _scene() -> np.ndarray:
