@@ -7,10 +7,12 @@ in each other's friction cone along the line joining them (antipodal contacts
 no wider than the gripper's 10 cm opening), spins the approach direction around
 the closing axis, and keeps only the gripper poses whose fingers and palm --
 including their sweep from the pre-grasp pose 5 cm back and the closing sweep
-from fully open -- contain no observed point.
+from fully open -- contain no observed point and stay above the surface the
+target stands on (which continues under the object and in its occlusion
+shadow, where the cloud has no point).
 
-Both contacts must be observed: a flat patch (a wall, a table top) has no
-antipodal pair and yields no grasp, and an object seen from a single side may
+Both contacts must be observed, above the support surface: a flat patch (a
+wall, a table top) has no antipodal pair and yields no grasp, and an object seen from a single side may
 yield none until the Observe phase adds views.
 
 Any other generator (a learned network) plugs in through the
