@@ -12,8 +12,8 @@ target stands on (which continues under the object and in its occlusion
 shadow, where the cloud has no point).
 
 Both contacts must be observed, above the support surface: a flat patch (a
-wall, a table top) has no antipodal pair and yields no grasp, and an object seen from a single side may
-yield none until the Observe phase adds views.
+wall, a table top) has no antipodal pair and yields no grasp, and an object
+seen from a single side may yield none until the Observe phase adds views.
 
 Any other generator (a learned network) plugs in through the
 ``GraspCandidateSource`` protocol.
