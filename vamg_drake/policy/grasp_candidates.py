@@ -168,6 +168,14 @@ class AntipodalGraspConfig:
     #: is 0.8; the pair sampling above uses the stricter ``friction_coefficient``).
     contact_friction_coefficient: float = 0.6
     min_pad_span: float = 0.5
+    #: First-contact points whose normals lie within acos(``facing_approach_cos``)
+    #: of the approach axis belong to a face seen head-on from the approach
+    #: side (a top face, for a top-down grasp); the face the pad touches under
+    #: that face's edge was not seen. They neither pass nor fail the
+    #: first-contact test, and a side with no other first-contact point is
+    #: not tested: a single view of a brick shows its top and one side, so the
+    #: far side's first contact is never observed (above 1: every point is tested).
+    facing_approach_cos: float = 0.866
     #: Most candidates returned (highest scores first).
     max_candidates: int = 400
     #: Top-down grasps proposed from the target's cluster itself, at this many
@@ -182,6 +190,13 @@ class AntipodalGraspConfig:
     #: racquetball or a plum none, or none reachable).
     top_down_yaws: int = 16
     top_down_floor_clearance: float = 0.0
+    #: A cluster longer than the pads are wide (a banana, a screwdriver, a
+    #: clamp) is also grasped top-down across slices of it, one pad width
+    #: thick, every ``top_down_slice_step`` along it, each slice's own width
+    #: and height setting the grasp's (up to ``top_down_max_slices`` per yaw,
+    #: middle first) [m].
+    top_down_slice_step: float = 0.02
+    top_down_max_slices: int = 7
     #: Grasp quality (in [0, 1], as the antipodal alignment) given to top-down grasps.
     top_down_quality: float = 0.8
     #: Cluster points: linked to the target's nearest point by steps of at
@@ -201,6 +216,12 @@ class AntipodalGraspConfig:
             )
         if self.num_seeds < 1 or self.num_approaches < 1:
             raise ValueError("AntipodalGraspConfig.num_seeds and num_approaches must be >= 1")
+        if not self.top_down_slice_step > 0.0 or self.top_down_max_slices < 1:
+            raise ValueError(f"AntipodalGraspConfig: need top_down_slice_step > 0 and top_down_max_slices >= 1, "
+                             f"got {self.top_down_slice_step}, {self.top_down_max_slices}")
+        if not self.facing_approach_cos > 0.0:
+            raise ValueError(f"AntipodalGraspConfig.facing_approach_cos must be > 0 (above 1: no point is left "
+                             f"out), got {self.facing_approach_cos}")
         if not 0.0 <= self.min_pad_span <= 1.0:
             raise ValueError(f"AntipodalGraspConfig.min_pad_span must be in [0, 1], got {self.min_pad_span}")
         if not self.contact_offsets or any(not 0.0 <= o < self.gripper.finger_length / 2 for o in self.contact_offsets):
@@ -361,7 +382,11 @@ class AntipodalGraspSampler:
                          z_support: float) -> tuple | None:
         """Top-down grasps of the target's cluster (``top_down_yaws``) among
         the points `above` (within ``grasp_radius``, above the support at
-        `z_support`), in the form of `_antipodal_family`; None when there are none."""
+        `z_support`), in the form of `_antipodal_family`; None when there are none.
+
+        Per yaw, the pads close across slices of the cluster one pad width
+        thick (`_top_down_slices`): the whole cluster when it is no longer
+        than that, else slices along it."""
         cfg = self.config
         if cfg.top_down_yaws < 1:
             return None
@@ -377,21 +402,54 @@ class AntipodalGraspSampler:
         yaw = yaw0 + np.arange(cfg.top_down_yaws) * (2 * np.pi / cfg.top_down_yaws)
         y_axis = np.stack([np.cos(yaw), np.sin(yaw), np.zeros_like(yaw)], axis=1)
         z_axis = np.stack([-np.sin(yaw), np.cos(yaw), np.zeros_like(yaw)], axis=1)  # x cross y, x = -z_W
-        along_y, along_z = points[:, :2] @ y_axis[:, :2].T, points[:, :2] @ z_axis[:, :2].T  # (N, Y)
-        width = along_y.max(axis=0) - along_y.min(axis=0)
-        mid_y = 0.5 * (along_y.max(axis=0) + along_y.min(axis=0))
-        mid_z = 0.5 * (along_z.max(axis=0) + along_z.min(axis=0))
         g = cfg.gripper
-        top = points[:, 2].max()
-        half_pads = 0.5 * g.finger_length
-        height = max(top - half_pads, z_support + g.fingertip_x + cfg.top_down_floor_clearance)
-        center = mid_y[:, None] * y_axis + mid_z[:, None] * z_axis
-        center[:, 2] = height
+        out_y, out_center, out_width = [], [], []
+        for k in range(cfg.top_down_yaws):
+            for center, width in self._top_down_slices(points, y_axis[k], z_axis[k], z_support):
+                out_y.append(y_axis[k])
+                out_center.append(center)
+                out_width.append(width)
+        if not out_y:
+            return None
+        width = np.array(out_width)
         keep = (width >= cfg.min_width) & (width <= g.max_opening - 2.0 * self._margin)
         if not np.any(keep):
             return None
-        x_axis = np.tile([0.0, 0.0, -1.0], (int(keep.sum()), 1))
-        return x_axis, y_axis[keep], center[keep], width[keep], np.full(int(keep.sum()), cfg.top_down_quality)
+        n = int(keep.sum())
+        return (np.tile([0.0, 0.0, -1.0], (n, 1)), np.array(out_y)[keep], np.array(out_center)[keep], width[keep],
+                np.full(n, cfg.top_down_quality))
+
+    def _top_down_slices(self, points: np.ndarray, y_axis: np.ndarray, z_axis: np.ndarray,
+                         z_support: float) -> list[tuple[np.ndarray, float]]:
+        """(contact centre, width) of top-down grasps closing along `y_axis`
+        (horizontal) across slices of `points` one pad width thick along
+        `z_axis`: the pads' middle 3 cm under the slice's top or, for a low
+        object, as low as the fingertips clear the support; middle slice first."""
+        cfg = self.config
+        g = cfg.gripper
+        along_y, along_z = points[:, :2] @ y_axis[:2], points[:, :2] @ z_axis[:2]
+        lo, hi = along_z.min(), along_z.max()
+        half = 0.5 * g.finger_width
+        mid = 0.5 * (lo + hi)
+        if hi - lo <= g.finger_width:
+            offsets = [mid]
+        else:
+            reach = 0.5 * (hi - lo) - half
+            steps = np.arange(0.0, reach + 1e-9, cfg.top_down_slice_step)
+            offsets = [mid + sgn * d for d in steps for sgn in ((1,) if d == 0 else (-1, 1))]
+            offsets = offsets[: cfg.top_down_max_slices]
+        out = []
+        for c in offsets:
+            band = np.abs(along_z - c) <= half if len(offsets) > 1 else np.ones(along_z.shape, bool)
+            if np.count_nonzero(band) < cfg.min_support:
+                continue
+            y_lo, y_hi = along_y[band].min(), along_y[band].max()
+            top = points[band, 2].max()
+            height = max(top - 0.5 * g.finger_length, z_support + g.fingertip_x + cfg.top_down_floor_clearance)
+            center = 0.5 * (y_lo + y_hi) * y_axis + c * z_axis
+            center[2] = height
+            out.append((center, float(y_hi - y_lo)))
+        return out
 
     def _target_cluster(self, above: np.ndarray, p_WT: np.ndarray) -> np.ndarray | None:
         """The target's points: those of `above` (the points within
@@ -485,9 +543,13 @@ class AntipodalGraspSampler:
         if normals is None:
             normals = np.zeros_like(points)
             cos_cone = -1.0  # every point's normal qualifies
+            facing_cos = 2.0  # and none faces the approach
         else:
             cos_cone = float(np.cos(np.arctan(cfg.contact_friction_coefficient)))
-        above = gripper_lowest_z(X_WG, g, cfg.approach_distance) >= z_support
+            facing_cos = cfg.facing_approach_cos
+        # 1 um of slack: a top-down grasp built with its fingertips exactly on
+        # the support rounds to either side of it.
+        above = gripper_lowest_z(X_WG, g, cfg.approach_distance) >= z_support - 1e-6
         return above & _clearance_kernel(
             np.ascontiguousarray(points),
             np.ascontiguousarray(normals, dtype=float),
@@ -506,6 +568,7 @@ class AntipodalGraspSampler:
             max(cfg.min_pad_span * 0.5 * g.finger_width - 0.5 * self._spacing, 0.0),
             max(cfg.contact_band, self._spacing),
             cfg.min_tip_distance,
+            facing_cos,
         )
 
 
@@ -592,6 +655,7 @@ def _clearance_kernel(
     min_span_z: float,
     contact_band: float,
     min_tip_distance: float,
+    facing_cos: float,
 ) -> np.ndarray:
     """Per candidate: no point in the closing sweep of the pads or the approach
     sweep of the palm and open fingers (both grown by ``margin``; on the pads'
@@ -600,7 +664,10 @@ def _clearance_kernel(
     within ``contact_band`` of its extremes along +-y of G, on each side):
     normals in the friction cone of the closing axis (`cos_cone`), at least
     ``min_tip_distance`` inside the fingertips, and reaching ``min_span_z`` on
-    both sides of the pads' middle along z (not over the object's edge)."""
+    both sides of the pads' middle along z (not over the object's edge).
+    First-contact points whose normals face the approach (|n . x| >=
+    ``facing_cos``) are left out of that test, and a side left with none is
+    not tested (its face was not seen)."""
     k_count = X_WG.shape[0]
     ok = np.zeros(k_count, dtype=np.bool_)
     reach2 = (abs(fingertip_x) + finger_length + palm_sweep) ** 2 + (half_open + finger_thickness) ** 2 + palm_height**2
@@ -652,6 +719,10 @@ def _clearance_kernel(
                     continue
                 if x > 0.0 or x < -finger_length or abs(z_signed) > 0.5 * finger_width:
                     continue
+                n_x = abs(X_WG[k, 0, 0] * normals[n, 0] + X_WG[k, 1, 0] * normals[n, 1]
+                          + X_WG[k, 2, 0] * normals[n, 2])
+                if n_x >= facing_cos:
+                    continue
                 count += 1
                 n_y = abs(X_WG[k, 0, 1] * normals[n, 0] + X_WG[k, 1, 1] * normals[n, 1]
                           + X_WG[k, 2, 1] * normals[n, 2])
@@ -663,6 +734,8 @@ def _clearance_kernel(
                 z_high = max(z_high, z_signed)
             # Most first-contact points face the pad, lie inside the fingertips,
             # and the contact reaches across the pads' middle.
+            if count == 0:
+                continue
             if (2 * in_cone < count or 2 * deep < count or z_low > -min_span_z or z_high < min_span_z):
                 good = False
                 break
