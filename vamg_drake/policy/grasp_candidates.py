@@ -12,8 +12,10 @@ target stands on (which continues under the object and in its occlusion
 shadow, where the cloud has no point).
 
 Both contacts must be observed, above the support surface: a flat patch (a
-wall, a table top) has no antipodal pair and yields no grasp, and an object
-seen from a single side may yield none until the Observe phase adds views.
+wall, a table top) has no antipodal pair and yields no grasp. Top-down grasps
+are also proposed from the target's cluster itself, across slices of it one
+pad width thick, where random antipodal pairs rarely meet on a small, lumpy
+or single-view object.
 
 Any other generator (a learned network) plugs in through the
 ``GraspCandidateSource`` protocol.
