@@ -137,8 +137,10 @@ class PlannerConfig:
         fold_fractions: fractions of the base path over which the arm may fold
             into the travel pose; 0.0 = fold at the start placement.
         hybrid_astar_max_expansions: search limit of the base planner (the
-            50 bench problems need at most ~1400; a hopeless search costs
-            ~30 us per expansion, so the cap bounds a failure to ~0.25 s).
+            50 procedural bench problems need at most ~1400, a detour around
+            a table in a ReplicaCAD apartment 13000-16000; a hopeless search
+            costs ~30 us per expansion, so the cap bounds a failure to ~1.2 s
+            of wall time; planning takes no simulated time).
         end_check_resolution: max sphere displacement [m] between states
             checked with the unpadded spheres, on the end pieces of a path
             that leave (reach) a start (goal) inside the padding.
@@ -174,7 +176,7 @@ class PlannerConfig:
     along_path_first_iterations: int = 64
     placement_fractions: list[float] = dataclasses.field(default_factory=lambda: [0.5, 0.7, 0.85, 1.0])
     fold_fractions: list[float] = dataclasses.field(default_factory=lambda: [0.15, 0.3, 0.0])
-    hybrid_astar_max_expansions: int = 8000
+    hybrid_astar_max_expansions: int = 40000
     end_check_resolution: float = 0.005
     escape_distance: float = 0.3
     footprint_split_z: float = 0.3
