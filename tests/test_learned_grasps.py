@@ -97,6 +97,16 @@ def test_collector_labels_grasps_with_both_outcomes(tmp_path: Path) -> None:
         collect(tmp_path, trials=2, seed=1, config=config, progress=False, time_budget=0.0)
 
 
+def test_the_collector_skips_placements_the_oracle_cannot_lift() -> None:
+    """Trial 45 of seed 0 drops the power drill in a pose no grasp of the
+    oracle check fits: the benchmark leaves such a target out, so the trial
+    records the oracle's reason and no samples."""
+    result = run_trial(45, 0, GraspTrialConfig())
+    assert result.object_name == "power_drill"
+    assert result.reason.startswith("oracle grasp check: 'power_drill'"), result.reason
+    assert len(result.success) == 0 and result.crops.shape[0] == 0
+
+
 def test_a_few_training_epochs_reduce_the_loss() -> None:
     data = _synthetic_dataset()
     config = GraspTrainingConfig(point_layers=[16, 32], head_layers=[16], epochs=40, batch_size=16, learning_rate=1e-2)

@@ -34,7 +34,7 @@ from pydrake.geometry import Box, Mesh
 from pydrake.math import RigidTransform, RollPitchYaw
 from tqdm import tqdm
 
-from vamg_drake.bench.oracle_grasp import GraspCandidate, OracleGraspConfig, simulate_grasp
+from vamg_drake.bench.oracle_grasp import GraspCandidate, OracleGraspConfig, check_graspable_at, simulate_grasp
 from vamg_drake.perception.depth_points import DepthBackProjector, DepthToPointsConfig
 from vamg_drake.perception.point_clusters import MirrorCompletionConfig, mirrored_object_points
 from vamg_drake.perception.shape_depth_render import ShapeDepthRenderer, look_at
@@ -50,7 +50,7 @@ from vamg_drake.world.ycb import YCB_OBJECTS, load_ycb_asset
 DEFAULT_HELDOUT: tuple[str, ...] = tuple(list(YCB_OBJECTS)[2::5])
 
 #: Bump when the trial format or the labelling changes.
-TRIAL_FORMAT_VERSION = 1
+TRIAL_FORMAT_VERSION = 2
 
 
 def fetch_oracle_config() -> OracleGraspConfig:
@@ -80,6 +80,12 @@ class GraspTrialConfig:
             by geometric score, the rest drawn uniformly from the others.
         top_k: see ``candidates_per_trial``.
         drop_attempts: placements tried before a trial gives up.
+        oracle_check: skip a placement that the benchmark's oracle grasp
+            check (`OracleGraspConfig`, as `paper_static` and the procedural
+            suites use it) cannot lift: the benchmark leaves such targets
+            out, and no ranking can pick a grasp that holds them (the
+            assembled toy airplane, whose convex hull the fingers cannot
+            close on, or a power drill in most poses).
         depth_noise: std of the Gaussian noise added to each depth pixel [m].
         execution_position_noise: std of the executed grasp's offset from the
             candidate, per axis [m]: the arm does not reach a grasp exactly
@@ -106,6 +112,7 @@ class GraspTrialConfig:
     candidates_per_trial: int = 8
     top_k: int = 3
     drop_attempts: int = 4
+    oracle_check: bool = True
     depth_noise: float = 0.001
     execution_position_noise: float = 0.01
     execution_rotation_noise: float = 0.06
@@ -222,6 +229,10 @@ def run_trial(index: int, seed: int, config: GraspTrialConfig, oracle: OracleGra
     if drop is None or not drop.accepted:
         return empty(f"no stable placement: {drop.reason if drop else ''}")
     X_WO = RigidTransform(RollPitchYaw(drop.rpy), drop.xyz)
+    if config.oracle_check:
+        verdict = check_graspable_at(name, X_WO, support, height, OracleGraspConfig())
+        if not verdict.graspable:
+            return empty(f"oracle grasp check: {verdict.reason}")
     asset = load_ycb_asset(name)
 
     intrinsics = CameraIntrinsics.from_config(config.camera)

@@ -125,12 +125,15 @@ class OracleGraspResult:
     lift: float
 
 
-def _hull_vertices_W(scenario: Scenario, name: str) -> np.ndarray:
-    asset = load_ycb_asset(scenario.object(name).ycb_model)
-    obj = scenario.object(name)
-    mesh = trimesh.load(str(asset.collision_path), force="mesh")
-    X_WO = RigidTransform(RollPitchYaw(obj.rpy), obj.xyz)
+def hull_vertices_W(model: str, X_WO: RigidTransform) -> np.ndarray:
+    """The convex hull's vertices (N, 3) of YCB object `model` at pose X_WO."""
+    mesh = trimesh.load(str(load_ycb_asset(model).collision_path), force="mesh")
     return (X_WO.rotation().matrix() @ np.asarray(mesh.vertices).T).T + X_WO.translation()
+
+
+def _hull_vertices_W(scenario: Scenario, name: str) -> np.ndarray:
+    obj = scenario.object(name)
+    return hull_vertices_W(obj.ycb_model, RigidTransform(RollPitchYaw(obj.rpy), obj.xyz))
 
 
 def _frame(approach: np.ndarray, closing: np.ndarray) -> np.ndarray:
@@ -142,9 +145,14 @@ def _frame(approach: np.ndarray, closing: np.ndarray) -> np.ndarray:
 
 def grasp_candidates(scenario: Scenario, name: str, config: OracleGraspConfig | None = None) -> list[GraspCandidate]:
     """Geometric grasp candidates on object ``name`` at its scenario pose (narrowest first)."""
+    return hull_grasp_candidates(_hull_vertices_W(scenario, name), scenario.object(name).support_height, config)
+
+
+def hull_grasp_candidates(V: np.ndarray, support: float,
+                          config: OracleGraspConfig | None = None) -> list[GraspCandidate]:
+    """Geometric grasp candidates on an object whose hull vertices are V (N, 3)
+    in W, resting on a support whose top is at height `support` (narrowest first)."""
     config = config or OracleGraspConfig()
-    V = _hull_vertices_W(scenario, name)
-    support = scenario.object(name).support_height
     centre = V.mean(axis=0)
     centre[2] = 0.5 * (V[:, 2].min() + V[:, 2].max())
     top = V[:, 2].max()
@@ -328,12 +336,27 @@ def check_graspable(scenario: Scenario, name: str | None = None, config: OracleG
     """Runs the oracle check on object ``name`` (default: the scenario's target)."""
     config = config or OracleGraspConfig()
     name = name or scenario.target
-    candidates = grasp_candidates(scenario, name, config)
+    return _check(name, grasp_candidates(scenario, name, config),
+                  lambda candidate: _simulate(scenario, name, candidate, config), config)
+
+
+def check_graspable_at(model: str, X_WO: RigidTransform, support: WorldPrimitive, support_top: float,
+                       config: OracleGraspConfig | None = None) -> OracleGraspResult:
+    """The oracle check of YCB object `model` resting at X_WO on `support`
+    (whose top is at height `support_top`), outside any scenario."""
+    config = config or OracleGraspConfig()
+    candidates = hull_grasp_candidates(hull_vertices_W(model, X_WO), support_top, config)
+    return _check(model, candidates, lambda candidate: simulate_grasp(model, X_WO, support, candidate, config), config)
+
+
+def _check(name: str, candidates: list[GraspCandidate], simulate, config: OracleGraspConfig) -> OracleGraspResult:
+    """Simulates `candidates` in turn (`simulate(candidate) -> (ok, lift,
+    reason)`) until one lifts the object."""
     if not candidates:
         return OracleGraspResult(False, 0, 0, f"'{name}': no grasp fits the {config.max_opening:.2f} m opening", 0.0)
     best_lift, reasons = 0.0, []
     for tried, candidate in enumerate(candidates, start=1):
-        ok, lift, reason = _simulate(scenario, name, candidate, config)
+        ok, lift, reason = simulate(candidate)
         if ok:
             return OracleGraspResult(True, len(candidates), tried, "", lift)
         best_lift = max(best_lift, lift)
