@@ -95,7 +95,9 @@ class GraspTrialConfig:
             and the labels say which object, not which grasp.
         execution_rotation_noise: std of the executed grasp's rotation about a random axis [rad].
         crop: the grasp-frame crop recorded per candidate.
-        grasps: the geometric grasp source.
+        grasps: the geometric grasp source, with the first-contact test
+            leaving out points that face the approach (more candidates on
+            single views, whose failures the learned scorer learns from).
         mirror: the mirror completion.
     """
 
@@ -117,7 +119,7 @@ class GraspTrialConfig:
     execution_position_noise: float = 0.01
     execution_rotation_noise: float = 0.06
     crop: GraspCropConfig = dc.field(default_factory=GraspCropConfig)
-    grasps: AntipodalGraspConfig = dc.field(default_factory=AntipodalGraspConfig)
+    grasps: AntipodalGraspConfig = dc.field(default_factory=lambda: AntipodalGraspConfig(facing_approach_cos=0.866))
     mirror: MirrorCompletionConfig = dc.field(default_factory=MirrorCompletionConfig)
 
     def object_names(self) -> list[str]:

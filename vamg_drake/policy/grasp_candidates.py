@@ -173,11 +173,15 @@ class AntipodalGraspConfig:
     #: First-contact points whose normals lie within acos(``facing_approach_cos``)
     #: of the approach axis belong to a face seen head-on from the approach
     #: side (a top face, for a top-down grasp); the face the pad touches under
-    #: that face's edge was not seen. They neither pass nor fail the
-    #: first-contact test, and a side with no other first-contact point is
-    #: not tested: a single view of a brick shows its top and one side, so the
-    #: far side's first contact is never observed (above 1: every point is tested).
-    facing_approach_cos: float = 0.866
+    #: that face's edge was not seen. With a value <= 1 they neither pass nor
+    #: fail the first-contact test, and a side with no other first-contact
+    #: point is not tested: a single view of a brick shows its top and one
+    #: side, so the far side's first contact is never observed. Off (above 1:
+    #: every point is tested) for the policy: in closed loop it admitted
+    #: grasps whose pads overlap a flat clamp's top centimetre over an unseen
+    #: side, which closed on nothing. The grasp trials use 0.866 (30 deg), so
+    #: the learned scorer sees such candidates fail.
+    facing_approach_cos: float = 2.0
     #: Most candidates returned (highest scores first).
     max_candidates: int = 400
     #: Top-down grasps proposed from the target's cluster itself, at this many
