@@ -391,8 +391,8 @@ class AntipodalGraspSampler:
         `z_support`), in the form of `_antipodal_family`; None when there are none.
 
         Per yaw, the pads close across slices of the cluster one pad width
-        thick (`_top_down_slices`): the whole cluster when it is no longer
-        than that, else slices along it."""
+        thick (`_top_down_slices`): the whole cluster when no slice fits
+        beside the middle one, else slices along it."""
         cfg = self.config
         if cfg.top_down_yaws < 1:
             return None
