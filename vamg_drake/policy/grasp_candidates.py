@@ -437,13 +437,10 @@ class AntipodalGraspSampler:
         lo, hi = along_z.min(), along_z.max()
         half = 0.5 * g.finger_width
         mid = 0.5 * (lo + hi)
-        if hi - lo <= g.finger_width:
-            offsets = [mid]
-        else:
-            reach = 0.5 * (hi - lo) - half
-            steps = np.arange(0.0, reach + 1e-9, cfg.top_down_slice_step)
-            offsets = [mid + sgn * d for d in steps for sgn in ((1,) if d == 0 else (-1, 1))]
-            offsets = offsets[: cfg.top_down_max_slices]
+        reach = max(0.5 * (hi - lo) - half, 0.0)  # farthest slice centre from the middle
+        steps = np.arange(0.0, reach + 1e-9, cfg.top_down_slice_step)
+        offsets = [mid + sgn * d for d in steps for sgn in ((1,) if d == 0 else (-1, 1))]
+        offsets = offsets[: cfg.top_down_max_slices]
         out = []
         for c in offsets:
             band = np.abs(along_z - c) <= half if len(offsets) > 1 else np.ones(along_z.shape, bool)
