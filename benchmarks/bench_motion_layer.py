@@ -89,7 +89,8 @@ def run(points: np.ndarray, chunks: list[np.ndarray], incremental: bool) -> dict
         t += config.recheck_period
         simulator.AdvanceTo(t)
         feedback = system.GetOutputPort("motion_feedback").Eval(context)
-        if feedback.event == MotionEvent.INVALIDATED and k not in invalidated and len(invalidated) == 0:
+        if (feedback.event in (MotionEvent.INVALIDATED, MotionEvent.REPLANNED) and k not in invalidated
+                and len(invalidated) == 0):
             invalidated.append(k)
     summary = timings.summary()
     spent = sum(summary[m]["total_ms"] - before.get(m, 0.0) for m in MAP_MODULES if m in summary)

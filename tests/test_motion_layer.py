@@ -182,7 +182,7 @@ def test_replanning_stops_after_max_replans():
         simulator.AdvanceTo(context.get_time() + config.recheck_period)
         events.append(system.GetOutputPort("motion_feedback").Eval(context).event)
     plan = system.GetOutputPort("trajectory").Eval(context)
-    assert events[:2] == [MotionEvent.INVALIDATED, MotionEvent.INVALIDATED]
+    assert events[:2] == [MotionEvent.REPLANNED, MotionEvent.REPLANNED]
     assert events[2] == MotionEvent.FAILED and plan.reason == REPLAN_LIMIT_REASON
 
 

@@ -48,7 +48,7 @@ def test_plans_then_replans_when_the_map_blocks_the_path():
     plan = system.GetOutputPort("trajectory").Eval(context)
     feedback = system.GetOutputPort("motion_feedback").Eval(context)
     assert plan.success and plan.map_revision == 1
-    assert feedback.goal_id == 1 and feedback.event == MotionEvent.INVALIDATED
+    assert feedback.goal_id == 1 and feedback.event == MotionEvent.REPLANNED
     assert plan.trajectory is not first
     assert np.max(np.abs(plan.trajectory.q[:, 1])) > 0.2  # goes around the pillar
 
@@ -103,7 +103,7 @@ def test_new_points_are_checked_alone_and_the_environment_is_rebuilt_only_to_pla
     simulator.AdvanceTo(0.05 + 2 * period)
     plan = system.GetOutputPort("trajectory").Eval(context)
     feedback = system.GetOutputPort("motion_feedback").Eval(context)
-    assert feedback.goal_id == 1 and feedback.event == MotionEvent.INVALIDATED
+    assert feedback.goal_id == 1 and feedback.event == MotionEvent.REPLANNED
     assert plan.success and builds() == 2
     assert np.max(np.abs(plan.trajectory.q[:, 1])) > 0.2
     # The replanned path keeps clear of the box seen before the rebuild too.

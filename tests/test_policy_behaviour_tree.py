@@ -128,6 +128,30 @@ def test_invalidated_goal_is_resampled_without_failure() -> None:
     assert bt.total_failures == 0
 
 
+def test_a_replanned_pregrasp_goal_is_kept_unless_a_grasp_is_found() -> None:
+    """REPLANNED (the trajectory was invalidated, the goal was not) keeps the
+    pre-grasp goal without drawing a new one; the grasp stage is tried first."""
+    bt, s = _make([False, False, True], [True], [True])
+    cmd = bt.step(_inputs())
+    assert cmd.phase == Phase.PREGRASP and s.pregrasp.calls == 1
+    kept = bt.step(_inputs(0.5), MotionEvent.REPLANNED)
+    assert kept.phase == Phase.PREGRASP and kept.goal_id == cmd.goal_id
+    np.testing.assert_array_equal(kept.q_goal, cmd.q_goal)
+    assert s.grasp.calls == 2 and s.pregrasp.calls == 1 and bt.total_failures == 0
+    grasp = bt.step(_inputs(1.0), MotionEvent.REPLANNED)
+    assert grasp.phase == Phase.GRASP_MOVE and grasp.goal_id > cmd.goal_id and s.grasp.calls == 3
+
+
+def test_a_replanned_observe_goal_gives_way_to_a_pregrasp() -> None:
+    bt, s = _make([False], [False, False, True], [True])
+    cmd = bt.step(_inputs())
+    assert cmd.phase == Phase.OBSERVE and s.observe.calls == 1
+    kept = bt.step(_inputs(0.5), MotionEvent.REPLANNED)
+    assert kept.phase == Phase.OBSERVE and kept.goal_id == cmd.goal_id and s.pregrasp.calls == 2
+    pre = bt.step(_inputs(1.0), MotionEvent.REPLANNED)
+    assert pre.phase == Phase.PREGRASP and pre.goal_id > cmd.goal_id and s.observe.calls == 1
+
+
 def test_the_invalidation_budget_counts_since_the_last_reached_goal() -> None:
     """Two invalidations are allowed; a reached goal resets the count, so four
     spread over two goals do not end the episode, three in a row do."""

@@ -57,12 +57,18 @@ class FailureCategory(enum.Enum):
 
 
 class MotionEvent(enum.Enum):
-    """Feedback from motion execution about the current goal."""
+    """Feedback from motion execution about the current goal.
+
+    INVALIDATED: the map put the goal itself in collision. REPLANNED: the map
+    invalidated the trajectory and the planner replanned to the same goal,
+    which is still valid.
+    """
 
     NONE = "none"
     REACHED = "reached"
     FAILED = "failed"
     INVALIDATED = "invalidated"
+    REPLANNED = "replanned"
 
 
 @dc.dataclass(frozen=True)

@@ -5,7 +5,8 @@ plan on a new goal, re-check the rest of the trajectory on every new map,
 stop and replan when it is invalidated (at most ``max_replans`` times per
 goal), back out along the robot's own path when the map puts its start in
 collision, approach a grasp target straight from behind, and report REACHED /
-FAILED / INVALIDATED to the policy. `MotionSupervisor.step` maps a
+FAILED / INVALIDATED (the goal is in collision) / REPLANNED (the trajectory
+was, the goal is not) to the policy. `MotionSupervisor.step` maps a
 `MotionState` and the tick's `MotionInputs` to the next state and a
 `MotionEvent`; `vamg_drake.systems.planner_system.PlannerSystem` is its
 LeafSystem, which keeps the state in the Context.
@@ -355,7 +356,7 @@ class MotionSupervisor:
         if periodic:
             # The baseline keeps executing the old plan when a periodic replan fails.
             return (new if new.success else dc.replace(plan, map_revision=revision)), MotionEvent.NONE
-        return new, (MotionEvent.INVALIDATED if new.success else self._failure_event(new))
+        return new, (MotionEvent.REPLANNED if new.success else self._failure_event(new))
 
     def _rest_is_valid(self, w: "_Work", plan: PlannedTrajectory, q: np.ndarray) -> bool:
         """The rest of the plan from q: up to its approach (if any) without,

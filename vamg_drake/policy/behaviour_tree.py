@@ -20,8 +20,14 @@ close the gripper, lift (torso up). Runtime recovery (``MotionEvent``):
   failed is blocked until the base moves (so the tree falls back to
   Pre-grasp), a stage that failed ``max_motion_failures`` times is skipped;
   more than ``max_total_failures`` failures end the episode (PLANNING).
-* INVALIDATED -- the goal is resampled from the top, without counting a failure
-  or using up the stage's goal budget (bounded by ``max_invalidations``).
+* INVALIDATED -- the map put the goal in collision: it is resampled from the
+  top, without counting a failure or using up the stage's goal budget
+  (bounded by ``max_invalidations``).
+* REPLANNED -- the map invalidated the trajectory and the planner replanned to
+  the same goal: the goal is kept unless a stage above it yields a goal now
+  (Grasp during a pre-grasp goal; Grasp or Pre-grasp during an observe goal).
+  Resampling the whole tree on every map update sent the robot to a new,
+  randomly drawn base each time: the paper's oscillation without convergence.
 
 Pre-grasp and observe goals are budgeted (``max_pregrasp_goals``,
 ``max_observe_goals``) so the tree cannot cycle forever; when every stage is
@@ -324,13 +330,15 @@ class SubgoalBehaviour:
         self._initial_samplers = tuple(m.save_state() for m in self._memory)
         self._s: BehaviourState | None = None  # the state of the step in progress
         self.root = py_trees.composites.Selector("Subgoal", memory=False)
+        self._generators: dict[Stage, GenerateGoal] = {}
         for stage, sampler, name in (
             (Stage.GRASP, samplers.grasp, "Grasp"),
             (Stage.PREGRASP, samplers.pregrasp, "Pre-grasp"),
             (Stage.OBSERVE, samplers.observe, "Observe"),
         ):
             seq = py_trees.composites.Sequence(name, memory=False)
-            seq.add_children([StageAllowed(stage, self), GenerateGoal(stage, sampler, self)])
+            self._generators[stage] = GenerateGoal(stage, sampler, self)
+            seq.add_children([StageAllowed(stage, self), self._generators[stage]])
             self.root.add_child(seq)
         self.root.add_child(FailLeaf(self))
         self.tree = py_trees.trees.BehaviourTree(self.root)
@@ -375,6 +383,8 @@ class SubgoalBehaviour:
             need_goal = self._on_failed(inputs)
         elif event == MotionEvent.INVALIDATED:
             need_goal = self._on_invalidated(inputs)
+        elif event == MotionEvent.REPLANNED:
+            need_goal = self._on_replanned(inputs)
         if s.phase == Phase.GRASP_CLOSE and s.close_started is not None:
             if inputs.time - s.close_started >= self.config.close_duration:
                 self._set_goal(inputs, Phase.GRASP_LIFT, s.q_lift, "gripper closed: lifting")
@@ -391,6 +401,11 @@ class SubgoalBehaviour:
         if state.proposal is None:
             self._terminate(inputs, state.failure, state.failure_reason)
             return
+        self._issue_proposal(inputs)
+
+    def _issue_proposal(self, inputs: PolicyInputs) -> None:
+        """Sets the goal of the step's proposal (`proposal`, `proposal_stage`)."""
+        state = self._s
         stage, p = state.proposal_stage, state.proposal
         state.goals_issued[stage] += 1
         self._s.head = np.full(2, np.nan) if p.head is None else np.asarray(p.head, float)
@@ -414,6 +429,21 @@ class SubgoalBehaviour:
             self._s.goals_issued[stage] -= 1
         self._transition(inputs, self._s.phase, "goal invalidated by the map: resampling")
         return need_goal
+
+    def _on_replanned(self, inputs: PolicyInputs) -> bool:
+        """The planner replanned to the current goal on a new map: the stages
+        above the current goal's are tried (see the module docstring); the goal
+        is kept when none yields one. Never asks for a new goal."""
+        state = self._s
+        above = {Phase.PREGRASP: (Stage.GRASP,), Phase.OBSERVE: (Stage.GRASP, Stage.PREGRASP)}.get(state.phase, ())
+        for stage in above:
+            if self._stage_block_reason(stage):
+                continue
+            state.proposal, state.proposal_stage = None, None
+            if self._generators[stage].update() == py_trees.common.Status.SUCCESS:
+                self._issue_proposal(inputs)
+                return False
+        return False
 
     def _start_grasp(self, inputs: PolicyInputs, p: SubgoalProposal, reason: str) -> None:
         """Starts the grasp execution phases with a grasp proposal (GRASP_MOVE first)."""

@@ -232,6 +232,11 @@ class StrategyBehaviour(SubgoalBehaviour):
             self.samplers.reject(self._s.q_goal)
         return self._after_motion_failure(inputs, stage)
 
+    def _on_replanned(self, inputs: PolicyInputs) -> bool:
+        # The baselines treat a replanned trajectory as an invalidated one:
+        # their own same-goal rule (`max_same_goal_replans`) decides.
+        return self._on_invalidated(inputs)
+
     def _on_invalidated(self, inputs: PolicyInputs) -> bool:
         self._s.invalidations += 1
         if self._s.invalidations > self.config.max_invalidations:

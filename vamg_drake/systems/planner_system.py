@@ -79,8 +79,9 @@ class PlannerSystem(LeafSystem):
     (approach, lift) is a straight joint-space motion at
     `linear_speed_fraction` of the limits; "hold" stops. Every new map
     revision re-checks the rest of a planned trajectory from the robot's
-    current q; when it is invalidated the system replans (INVALIDATED) or
-    reports FAILED. A planner exception is logged with its traceback and
+    current q; when it is invalidated the system replans (REPLANNED), or
+    reports INVALIDATED when the map put the goal itself in collision, or
+    FAILED. A planner exception is logged with its traceback and
     becomes a FAILED motion with reason `EXCEPTION_REASON`; the system never
     raises in an episode.
 
