@@ -142,6 +142,19 @@ def test_a_replanned_pregrasp_goal_is_kept_unless_a_grasp_is_found() -> None:
     assert grasp.phase == Phase.GRASP_MOVE and grasp.goal_id > cmd.goal_id and s.grasp.calls == 3
 
 
+def test_a_goal_replanned_too_often_is_resampled_without_a_failure() -> None:
+    bt, s = _make([False], [True], [True], max_kept_replans=2)
+    cmd = bt.step(_inputs())
+    for k in range(2):
+        kept = bt.step(_inputs(0.1 * (k + 1)), MotionEvent.REPLANNED)
+        assert kept.goal_id == cmd.goal_id
+    new = bt.step(_inputs(0.5), MotionEvent.REPLANNED)
+    assert new.phase == Phase.PREGRASP and new.goal_id > cmd.goal_id and s.pregrasp.calls == 2
+    assert bt.total_failures == 0
+    again = bt.step(_inputs(0.6), MotionEvent.REPLANNED)  # the new goal's count starts again
+    assert again.goal_id == new.goal_id
+
+
 def test_a_replanned_observe_goal_gives_way_to_a_pregrasp() -> None:
     bt, s = _make([False], [False, False, True], [True])
     cmd = bt.step(_inputs())

@@ -25,7 +25,9 @@ close the gripper, lift (torso up). Runtime recovery (``MotionEvent``):
   (bounded by ``max_invalidations``).
 * REPLANNED -- the map invalidated the trajectory and the planner replanned to
   the same goal: the goal is kept unless a stage above it yields a goal now
-  (Grasp during a pre-grasp goal; Grasp or Pre-grasp during an observe goal).
+  (Grasp during a pre-grasp goal; Grasp or Pre-grasp during an observe goal),
+  for at most ``max_kept_replans`` replans, after which it is resampled as an
+  invalidated goal.
   Resampling the whole tree on every map update sent the robot to a new,
   randomly drawn base each time: the paper's oscillation without convergence.
 
@@ -146,6 +148,12 @@ class BehaviourConfig:
     #: of the room keep invalidating the first pre-grasp goals, so a budget of
     #: about 10 per episode can end it in seconds; each costs a resample).
     max_invalidations: int = 30
+    #: Replans of one goal (`MotionEvent.REPLANNED`) during which the goal is
+    #: kept; the next one resamples it like an invalidated goal. Below the
+    #: motion layer's own limit (`PlannerSystemConfig.max_replans`, 8),
+    #: which would end the goal as a motion failure: while the first views of
+    #: an apartment come in, a path is invalidated a dozen times on its way.
+    max_kept_replans: int = 4
     #: Base displacement that unblocks the grasp stage after a failed grasp motion [m].
     unblock_distance: float = 0.1
     #: Time the gripper takes to close [s].
@@ -186,6 +194,7 @@ class BehaviourState:
         close_started: when the gripper began to close [s].
         total_failures: motion failures so far.
         invalidations: goal invalidations since the last reached goal.
+        goal_replans: replans of the current goal kept (`max_kept_replans`).
         history: (time, phase, reason) of every transition.
         last_failures: the last failure (reason, category) of each `Stage`.
         motion_failures, goals_issued: per `Stage`.
@@ -209,6 +218,7 @@ class BehaviourState:
     reason: str = ""
     total_failures: int = 0
     invalidations: int = 0
+    goal_replans: int = 0
     history: tuple[tuple[float, str, str], ...] = ()
     last_failures: dict = dc.field(default_factory=dict)
     motion_failures: dict = dc.field(default_factory=_stage_counts)
@@ -433,8 +443,11 @@ class SubgoalBehaviour:
     def _on_replanned(self, inputs: PolicyInputs) -> bool:
         """The planner replanned to the current goal on a new map: the stages
         above the current goal's are tried (see the module docstring); the goal
-        is kept when none yields one. Never asks for a new goal."""
+        is kept when none yields one, up to `max_kept_replans` times."""
         state = self._s
+        state.goal_replans += 1
+        if state.goal_replans > self.config.max_kept_replans:
+            return self._on_invalidated(inputs)
         above = {Phase.PREGRASP: (Stage.GRASP,), Phase.OBSERVE: (Stage.GRASP, Stage.PREGRASP)}.get(state.phase, ())
         for stage in above:
             if self._stage_block_reason(stage):
@@ -522,6 +535,7 @@ class SubgoalBehaviour:
 
     def _set_goal(self, inputs: PolicyInputs, phase: Phase, q_goal: np.ndarray, reason: str) -> None:
         self._s.goal_id += 1
+        self._s.goal_replans = 0
         self._s.q_goal = np.asarray(q_goal, dtype=float).copy()
         self._transition(inputs, phase, reason)
 
