@@ -171,7 +171,7 @@ def test_replanning_stops_after_max_replans():
         _goal(4, layout.stow_configuration(4.0, 0.0, 0.0), "plan")))
     simulator = Simulator(system, context)
     simulator.AdvanceTo(0.05)
-    events = []
+    events, numbers = [], []
     # Each new map puts a short wall across the current path's middle: each plan is invalidated.
     for revision in range(1, 5):
         traj = system.GetOutputPort("trajectory").Eval(context).trajectory
@@ -180,9 +180,12 @@ def test_replanning_stops_after_max_replans():
         x, y = traj.sample(0.5 * (traj.start_time + traj.end_time))[:2]
         system.GetInputPort("point_map").FixValue(context, AbstractValue.Make(_wall(x, y, revision)))
         simulator.AdvanceTo(context.get_time() + config.recheck_period)
-        events.append(system.GetOutputPort("motion_feedback").Eval(context).event)
+        feedback = system.GetOutputPort("motion_feedback").Eval(context)
+        events.append(feedback.event)
+        numbers.append(feedback.number)
     plan = system.GetOutputPort("trajectory").Eval(context)
     assert events[:2] == [MotionEvent.REPLANNED, MotionEvent.REPLANNED]
+    assert numbers[0] < numbers[1] < numbers[2]  # each replan is its own report to the policy
     assert events[2] == MotionEvent.FAILED and plan.reason == REPLAN_LIMIT_REASON
 
 

@@ -99,6 +99,23 @@ def test_policy_system_motion_failure_feedback() -> None:
     assert policy.behaviour_state(ctx).motion_failure_counts["pre_grasp"] == 1
 
 
+def test_policy_system_handles_each_replan_report() -> None:
+    """Two replans of the same goal are two reports (`MotionFeedback.number`):
+    the policy counts both and keeps the goal."""
+    log: list = []
+    diagram, policy = _diagram(SubgoalBehaviour(_samplers(False, log)), None)
+    sim = Simulator(diagram)
+    sim.AdvanceTo(0.15)
+    ctx = policy.GetMyMutableContextFromRoot(sim.get_mutable_context())
+    goal = policy.GetOutputPort("goal").Eval(ctx)
+    assert goal.phase == Phase.PREGRASP
+    for number in (1, 1, 2):
+        policy.GetInputPort("motion_feedback").FixValue(ctx, MotionFeedback(goal.goal_id, MotionEvent.REPLANNED, number))
+        sim.AdvanceTo(sim.get_context().get_time() + 0.25)
+    assert policy.behaviour_state(ctx).goal_replans == 2
+    assert policy.GetOutputPort("goal").Eval(ctx).goal_id == goal.goal_id
+
+
 def test_real_subgoal_policy_in_a_diagram() -> None:
     from vamg_drake.testing import synthetic_clouds
     from vamg_drake.systems.subgoal_policy_system import make_subgoal_policy

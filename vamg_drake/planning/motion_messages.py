@@ -107,10 +107,13 @@ class SubgoalCommand:
 @dc.dataclass(frozen=True)
 class MotionFeedback:
     """What the motion layer reports about goal ``goal_id`` (the value of the
-    planner's ``motion_feedback`` output, the policy's input of that name)."""
+    planner's ``motion_feedback`` output, the policy's input of that name).
+    ``number`` counts the planner's reports, so that the same event about the
+    same goal twice (two replans) are two reports."""
 
     goal_id: int = -1
     event: MotionEvent = MotionEvent.NONE
+    number: int = 0
 
 
 @dc.dataclass(frozen=True, eq=False)

@@ -258,5 +258,7 @@ class PlannerSystem(LeafSystem):
         state.get_mutable_abstract_state(self._motion_index).set_value(motion)
         state.get_mutable_abstract_state(self._environment_index).set_value(environment)
         if event != MotionEvent.NONE:
-            state.get_mutable_abstract_state(self._feedback_index).set_value(MotionFeedback(goal.goal_id, event))
+            last = context.get_abstract_state(self._feedback_index).get_value()
+            state.get_mutable_abstract_state(self._feedback_index).set_value(
+                MotionFeedback(goal.goal_id, event, last.number + 1))
         return EventStatus.Succeeded()
