@@ -340,15 +340,15 @@ class SubgoalBehaviour:
         self._initial_samplers = tuple(m.save_state() for m in self._memory)
         self._s: BehaviourState | None = None  # the state of the step in progress
         self.root = py_trees.composites.Selector("Subgoal", memory=False)
-        self._generators: dict[Stage, GenerateGoal] = {}
+        self._stages: dict[Stage, py_trees.composites.Sequence] = {}
         for stage, sampler, name in (
             (Stage.GRASP, samplers.grasp, "Grasp"),
             (Stage.PREGRASP, samplers.pregrasp, "Pre-grasp"),
             (Stage.OBSERVE, samplers.observe, "Observe"),
         ):
             seq = py_trees.composites.Sequence(name, memory=False)
-            self._generators[stage] = GenerateGoal(stage, sampler, self)
-            seq.add_children([StageAllowed(stage, self), self._generators[stage]])
+            seq.add_children([StageAllowed(stage, self), GenerateGoal(stage, sampler, self)])
+            self._stages[stage] = seq
             self.root.add_child(seq)
         self.root.add_child(FailLeaf(self))
         self.tree = py_trees.trees.BehaviourTree(self.root)
@@ -450,10 +450,9 @@ class SubgoalBehaviour:
             return self._on_invalidated(inputs)
         above = {Phase.PREGRASP: (Stage.GRASP,), Phase.OBSERVE: (Stage.GRASP, Stage.PREGRASP)}.get(state.phase, ())
         for stage in above:
-            if self._stage_block_reason(stage):
-                continue
             state.proposal, state.proposal_stage = None, None
-            if self._generators[stage].update() == py_trees.common.Status.SUCCESS:
+            self._stages[stage].tick_once()  # the tree's own branch: allowed?, then sample
+            if self._stages[stage].status == py_trees.common.Status.SUCCESS:
                 self._issue_proposal(inputs)
                 return False
         return False
