@@ -289,3 +289,83 @@ def test_a_step_is_a_function_of_the_state_and_the_inputs() -> None:
     np.testing.assert_array_equal(failed.q_goal, failed_again.q_goal)
     assert failed.q_goal[0] != cmd.q_goal[0]
     assert first.motion_failure_counts["grasp"] == 0  # the step did not change the state it was given
+
+
+class RecordingGrasp(ScriptedSampler):
+    """A grasp sampler that always succeeds and keeps the failed grasps it was shown."""
+
+    def __init__(self) -> None:
+        super().__init__("grasp", [True])
+        self.failed_seen: list = []
+
+    def __call__(self, inputs: PolicyInputs) -> SubgoalProposal:
+        self.failed_seen.append(None if inputs.failed_grasps is None else len(inputs.failed_grasps))
+        return super().__call__(inputs)
+
+
+def _opening_inputs(t: float, q: np.ndarray, opening: float | None) -> PolicyInputs:
+    return PolicyInputs(t, q, np.zeros((0, 3)), np.array([1.0, 0, 0.8]), gripper_opening=opening)
+
+
+def _to_closing(bt: Stepper):
+    """Steps a fresh grasp to GRASP_CLOSE; returns (pre-grasp command, closing command)."""
+    move = bt.step(_opening_inputs(0.0, layout.stow_configuration(0, 0, 0), 0.1))
+    approach = bt.step(_opening_inputs(1.0, move.q_goal, 0.1), MotionEvent.REACHED)
+    close = bt.step(_opening_inputs(2.0, approach.q_goal, 0.1), MotionEvent.REACHED)
+    assert close.phase == Phase.GRASP_CLOSE
+    return move, close
+
+
+def test_a_grasp_that_closes_on_nothing_backs_off_and_another_is_sampled() -> None:
+    grasp, fail = RecordingGrasp(), ScriptedSampler("pregrasp", [False])
+    bt = Stepper(SubgoalBehaviour(SubgoalSamplers(grasp, fail, fail), BehaviourConfig(max_grasp_retries=2)))
+    move, close = _to_closing(bt)
+    assert bt.step(_opening_inputs(2.5, close.q_goal, 0.03)).phase == Phase.GRASP_CLOSE  # still closing
+    back = bt.step(_opening_inputs(2.8, close.q_goal, 0.0005))
+    assert back.phase == Phase.GRASP_RETREAT and back.motion == "linear"
+    assert back.gripper_opening == layout.GRIPPER_MAX_OPENING  # the fingers open as the arm backs off
+    # Back to the pre-grasp pose (the torso no lower than it is).
+    np.testing.assert_allclose(np.delete(back.q_goal, layout.TORSO), np.delete(move.q_goal, layout.TORSO))
+    assert back.q_goal[layout.TORSO] == pytest.approx(close.q_goal[layout.TORSO])
+    again = bt.step(_opening_inputs(4.0, back.q_goal, 0.1), MotionEvent.REACHED)
+    assert again.phase == Phase.GRASP_MOVE and again.goal_id > back.goal_id
+    assert grasp.failed_seen == [None, 1]  # the retry's sampler was shown the failed grasp
+    assert len(bt.state.failed_grasps) == 1 and bt.state.failure == FailureCategory.NONE
+
+
+def test_a_grasp_that_slips_while_lifting_backs_off_at_the_height_reached() -> None:
+    bt = Stepper(SubgoalBehaviour(SubgoalSamplers(RecordingGrasp(), *[ScriptedSampler("pregrasp", [False])] * 2)))
+    move, close = _to_closing(bt)
+    lift = bt.step(_opening_inputs(3.1, close.q_goal, 0.02))
+    assert lift.phase == Phase.GRASP_LIFT  # something is held: lifting
+    half_lifted = close.q_goal.copy()
+    half_lifted[layout.TORSO] += 0.05
+    back = bt.step(_opening_inputs(3.6, half_lifted, 0.001))
+    assert back.phase == Phase.GRASP_RETREAT
+    assert back.q_goal[layout.TORSO] == pytest.approx(max(move.q_goal[layout.TORSO], half_lifted[layout.TORSO]))
+    np.testing.assert_allclose(np.delete(back.q_goal, layout.TORSO), np.delete(move.q_goal, layout.TORSO))
+
+
+@pytest.mark.parametrize("opening", [None, 0.02])
+def test_a_held_or_unmeasured_grasp_is_lifted_as_before(opening) -> None:
+    bt = Stepper(SubgoalBehaviour(SubgoalSamplers(RecordingGrasp(), *[ScriptedSampler("pregrasp", [False])] * 2)))
+    _, close = _to_closing(bt)
+    lift = bt.step(_opening_inputs(3.1, close.q_goal, opening))
+    assert lift.phase == Phase.GRASP_LIFT
+    done = bt.step(_opening_inputs(5.0, lift.q_goal, opening), MotionEvent.REACHED)
+    assert done.phase == Phase.SUCCEEDED
+
+
+def test_the_last_retry_is_lifted_whatever_it_holds() -> None:
+    grasp = RecordingGrasp()
+    bt = Stepper(SubgoalBehaviour(SubgoalSamplers(grasp, *[ScriptedSampler("pregrasp", [False])] * 2),
+                                  BehaviourConfig(max_grasp_retries=1)))
+    _, close = _to_closing(bt)
+    back = bt.step(_opening_inputs(3.1, close.q_goal, 0.0))
+    assert back.phase == Phase.GRASP_RETREAT
+    move = bt.step(_opening_inputs(4.0, back.q_goal, 0.1), MotionEvent.REACHED)
+    approach = bt.step(_opening_inputs(5.0, move.q_goal, 0.1), MotionEvent.REACHED)
+    close = bt.step(_opening_inputs(6.0, approach.q_goal, 0.1), MotionEvent.REACHED)
+    lift = bt.step(_opening_inputs(7.1, close.q_goal, 0.0))
+    assert lift.phase == Phase.GRASP_LIFT  # no retries left: the episode judges the lift
+    assert bt.step(_opening_inputs(9.0, lift.q_goal, 0.0), MotionEvent.REACHED).phase == Phase.SUCCEEDED

@@ -16,6 +16,7 @@ from vamg_drake.policy.grasp_candidates import (
 from vamg_drake.policy.grasp_ranking import (
     GraspRankingConfig,
     farthest_pose_sampling,
+    near_any_grasp,
     pose_distance,
     pregrasp_poses,
     proximity_weighted_score,
@@ -569,3 +570,27 @@ def test_a_long_object_is_grasped_top_down_along_its_length() -> None:
     assert along.size >= middle_only.size + 6
     with pytest.raises(ValueError, match="top_down_slice_step"):
         AntipodalGraspConfig(top_down_slice_step=0.0)
+
+
+def test_near_any_grasp_ignores_the_roll_but_not_the_place_or_the_approach() -> None:
+    def pose(p, yaw_about_x=0.0, approach=(1.0, 0.0, 0.0)):
+        a = np.asarray(approach, float) / np.linalg.norm(approach)
+        helper = np.array([0.0, 0.0, 1.0]) if abs(a[2]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        y = np.cross(helper, a)
+        y /= np.linalg.norm(y)
+        z = np.cross(a, y)
+        c, s = np.cos(yaw_about_x), np.sin(yaw_about_x)
+        X = np.eye(4)
+        X[:3, :3] = np.column_stack([a, c * y + s * z, -s * y + c * z])
+        X[:3, 3] = p
+        return X
+
+    failed = pose([0, 0, 0])[None]
+    X = np.stack([
+        pose([0.01, 0, 0], yaw_about_x=1.2),            # same place and approach, other roll: near
+        pose([0.05, 0, 0]),                             # 5 cm away: not near
+        pose([0, 0, 0], approach=(1.0, 0.0, -1.0)),     # approach tilted 45 deg: not near
+        pose([0, 0.01, 0], approach=(1.0, 0.0, -0.3)),  # tilted 17 deg: near
+    ])
+    np.testing.assert_array_equal(near_any_grasp(X, failed, 0.02, np.radians(30)), [True, False, False, True])
+    assert near_any_grasp(X, np.zeros((0, 4, 4)), 0.02, 0.5).tolist() == [False] * 4

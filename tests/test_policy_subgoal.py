@@ -345,3 +345,34 @@ def test_pregrasp_proposal_is_the_pregrasp_of_its_accepted_grasp(scene) -> None:
     # of the wrist by pi.
     assert gap[True] < 0.4
     assert gap[False] > 1.0
+
+
+def test_a_grasp_that_closed_on_nothing_is_not_proposed_again(pipeline) -> None:
+    # The brick of the test above: the grasp chosen first, reported as one
+    # that closed on nothing, gives way to a different grasp (another place or
+    # another approach axis), and once every candidate has failed the stage
+    # says so instead of proposing a failed grasp again.
+    z = 0.94
+    counter = clouds.box_surface_cloud([0.8, -0.5, 0.0], [1.4, 0.5, z], spacing=0.03)
+    base = np.array([1.0, 0.0, z])
+    brick = clouds.box_cloud(center=base, size=(0.064, 0.032, 0.02), yaw=0.3, noise=0.001, seed=5)
+    dense = np.concatenate([brick, clouds.table_top_cloud(z=z, center_xy=base[:2], size=0.4, spacing=0.005)])
+    points = np.concatenate([clouds.room_walls_cloud(), counter, dense[::2]])
+    target = base + np.array([0.0, 0.0, 0.01])
+    pre = pipeline.sample_pregrasp(PolicyInputs(0.0, layout.stow_configuration(-0.5, 0.0, 0.0), points, target, dense))
+    assert pre.success, pre.failure_reason
+    first = pipeline.sample_grasp(PolicyInputs(1.0, pre.q_goal, points, target, dense))
+    assert first.success, first.failure_reason
+    X_first = FetchKinematics.instance().gripper_pose(first.q_grasp)
+    retry = pipeline.sample_grasp(PolicyInputs(1.0, pre.q_goal, points, target, dense, failed_grasps=X_first[None]))
+    assert retry.success, retry.failure_reason
+    X_retry = FetchKinematics.instance().gripper_pose(retry.q_grasp)
+    cfg = pipeline.config
+    moved = np.linalg.norm(X_retry[:3, 3] - X_first[:3, 3]) > cfg.failed_grasp_radius
+    turned = X_retry[:3, 0] @ X_first[:3, 0] < np.cos(np.radians(cfg.failed_grasp_angle))
+    assert moved or turned
+    candidates = pipeline._grasp_candidates(PolicyInputs(1.0, pre.q_goal, points, target, dense),
+                                            pipeline._points(PolicyInputs(1.0, pre.q_goal, points, target)), target)
+    every = PolicyInputs(1.0, pre.q_goal, points, target, dense, failed_grasps=candidates.X_WG)
+    exhausted = pipeline.sample_grasp(every)
+    assert not exhausted.success and "closed on nothing" in exhausted.failure_reason

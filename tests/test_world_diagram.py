@@ -242,3 +242,11 @@ def test_static_scene_collision_geometry_is_anchored_and_named():
     plant = ed.world.plant
     for b in plant.GetBodyIndices(ed.world.scene.scene_instance):
         assert not plant.GetCollisionGeometriesForBody(plant.get_body(b))
+
+
+def test_gripper_opening_is_the_measured_gap_between_the_fingers():
+    ed, sim, _ = _simulate(box_room_scenario(), 0.5)
+    V = _eval(ed.robot_state, "configuration", sim)
+    opening = _eval(ed.robot_state, "gripper_opening", sim)
+    assert opening.shape == (1,) and opening[0] == pytest.approx(V[13] + V[14])
+    assert opening[0] == pytest.approx(0.1, abs=0.005)  # the scripted driver holds the gripper open

@@ -3,10 +3,11 @@
 The full system (``policy: full``, the default)::
 
     Scenario ─► World (plant + scene graph + head RgbdSensor)
-      plant state ─► RobotStateSelector ─► q
+      plant state ─► RobotStateSelector ─► q, gripper_opening
       depth, X_WC, q ─► RayCastMap (10 Hz) ─► point_map
       depth, X_WC, target ─► TargetCloud ─► target_cloud
-      point_map, q, target, motion_feedback, target_cloud ─► SubgoalPolicy ─► goal, phase, gripper_command
+      point_map, q, target, motion_feedback, target_cloud,
+        gripper_opening ─► SubgoalPolicy ─► goal, phase, gripper_command
       goal, planner's point_map, q, target ─► WholeBodyPlanner ─► trajectory, motion_feedback
       depth, X_WC, q ─► SeenSpace (10 Hz) ─► seen_space
       point_map, seen_space ─► HiddenCellMap ─► the planner's point_map
@@ -335,6 +336,7 @@ def _add_full_system(builder: DiagramBuilder, ed: EpisodeDiagram, scenario: Scen
     builder.Connect(target.get_output_port(), policy.GetInputPort("target"))
     builder.Connect(planner.GetOutputPort("motion_feedback"), policy.GetInputPort("motion_feedback"))
     builder.Connect(cloud.GetOutputPort("target_cloud"), policy.GetInputPort("target_cloud"))
+    builder.Connect(ed.robot_state.GetOutputPort("gripper_opening"), policy.GetInputPort("gripper_opening"))
 
     builder.Connect(policy.GetOutputPort("goal"), planner.GetInputPort("goal"))
     planner_map = builder.AddNamedSystem("hidden_cell_map", HiddenCellMap())

@@ -25,6 +25,7 @@ class Phase(enum.Enum):
     GRASP_APPROACH = "grasp_approach"  # linear approach to the grasp pose
     GRASP_CLOSE = "grasp_close"
     GRASP_LIFT = "grasp_lift"
+    GRASP_RETREAT = "grasp_retreat"  # the gripper closed on nothing: linear motion back to the pre-grasp pose
     PREGRASP = "pre_grasp"
     OBSERVE = "observe"
     SUCCEEDED = "succeeded"
@@ -32,7 +33,7 @@ class Phase(enum.Enum):
 
 
 TERMINAL = (Phase.SUCCEEDED, Phase.FAILED)
-GRASP_PHASES = (Phase.GRASP_MOVE, Phase.GRASP_APPROACH, Phase.GRASP_CLOSE, Phase.GRASP_LIFT)
+GRASP_PHASES = (Phase.GRASP_MOVE, Phase.GRASP_APPROACH, Phase.GRASP_CLOSE, Phase.GRASP_LIFT, Phase.GRASP_RETREAT)
 
 
 def stage_name(phase: Phase) -> str:

@@ -12,7 +12,14 @@ reached, after a failed motion, or when the map invalidates the goal)::
 Each ``GenerateGoal`` calls an injectable sampler (``SubgoalSamplers``); the
 first stage whose sampler succeeds sets the goal. Execution of a grasp goal is
 a fixed sequence of phases: move to the pre-grasp (planned), linear approach,
-close the gripper, lift (torso up). Runtime recovery (``MotionEvent``):
+close the gripper, lift (torso up). A grasp whose fingers close on nothing
+(the measured opening ``PolicyInputs.gripper_opening`` below
+``empty_gripper_opening`` while closing or lifting: the object slipped out or
+was pushed away) backs off along the approach to its pre-grasp pose and the
+tree is ticked again, with that grasp excluded from the candidates
+(``PolicyInputs.failed_grasps``), up to ``max_grasp_retries`` times; the last
+try lifts whatever it holds and the episode judges it. Runtime recovery
+(``MotionEvent``):
 
 * REACHED -- grasp phases advance; a reached pre-grasp or observe goal
   re-ticks the tree (Grasp first, from the new base and the updated map).
@@ -60,6 +67,7 @@ from vamg_drake.planning.motion_messages import (
     stage_name,
 )
 from vamg_drake.robot import layout
+from vamg_drake.robot.kinematics import FetchKinematics
 
 
 class Stage(enum.Enum):
@@ -79,6 +87,11 @@ class PolicyInputs:
     p_WM: np.ndarray
     p_WT: np.ndarray
     p_WS: np.ndarray | None = None
+    #: The measured gap between the fingers [m] (None: not measured).
+    gripper_opening: float | None = None
+    #: (K, 4, 4) gripper poses X_WG of this episode's grasps that closed on
+    #: nothing (set by the behaviour; the grasp sampler leaves them out).
+    failed_grasps: np.ndarray | None = None
 
 
 @dc.dataclass(frozen=True)
@@ -163,6 +176,14 @@ class BehaviourConfig:
     #: 1-3 cm down in the fingers as they leave the table (with a 12 cm lift,
     #: objects such as a pear, a banana or a Lego brick end held at 9.0-9.8 cm).
     lift_height: float = 0.15
+    #: A closed gripper narrower than this holds nothing [m]: the thinnest
+    #: object the grasp sampler proposes is 4 mm (`AntipodalGraspConfig.min_width`),
+    #: and the compliant pads sink up to about a millimetre into a thin wall
+    #: they hold (a mug's), while fingers that closed on nothing go on to 0.
+    empty_gripper_opening: float = 0.0015
+    #: Grasps that closed on nothing retried from their pre-grasp pose (0: the
+    #: first grasp is lifted whatever it holds).
+    max_grasp_retries: int = 2
 
     def __post_init__(self) -> None:
         self.validate()
@@ -190,7 +211,9 @@ class BehaviourState:
 
     Attributes:
         phase, goal_id, q_goal, head, reason: the current goal (see `SubgoalCommand`).
-        q_grasp, q_lift: the grasp and lift configurations of the grasp being executed.
+        q_pregrasp, q_grasp, q_lift: the pre-grasp, grasp and lift
+            configurations of the grasp being executed.
+        failed_grasps: gripper poses X_WG (4, 4) of the grasps that closed on nothing.
         close_started: when the gripper began to close [s].
         total_failures: motion failures so far.
         invalidations: goal invalidations since the last reached goal.
@@ -211,8 +234,10 @@ class BehaviourState:
     phase: Phase = Phase.IDLE
     goal_id: int = 0
     q_goal: np.ndarray | None = None
+    q_pregrasp: np.ndarray | None = None
     q_grasp: np.ndarray | None = None
     q_lift: np.ndarray | None = None
+    failed_grasps: tuple[np.ndarray, ...] = ()
     head: np.ndarray = dc.field(default_factory=lambda: np.full(2, np.nan))
     close_started: float | None = None
     reason: str = ""
@@ -369,6 +394,8 @@ class SubgoalBehaviour:
              event: MotionEvent = MotionEvent.NONE) -> tuple[BehaviourState, SubgoalCommand]:
         """(the next state, the command): advances the policy with new inputs and optional motion feedback."""
         s = state.copy()
+        if s.failed_grasps:
+            inputs = dc.replace(inputs, failed_grasps=np.stack(s.failed_grasps))
         s.inputs = inputs
         for memory, saved in zip(self._memory, s.samplers):
             memory.load_state(saved)
@@ -396,8 +423,12 @@ class SubgoalBehaviour:
         elif event == MotionEvent.REPLANNED:
             need_goal = self._on_replanned(inputs)
         if s.phase == Phase.GRASP_CLOSE and s.close_started is not None:
-            if inputs.time - s.close_started >= self.config.close_duration:
+            if self._retry_empty_grasp(inputs):
+                pass
+            elif inputs.time - s.close_started >= self.config.close_duration:
                 self._set_goal(inputs, Phase.GRASP_LIFT, s.q_lift, "gripper closed: lifting")
+        elif s.phase == Phase.GRASP_LIFT:
+            self._retry_empty_grasp(inputs)
         if need_goal and s.phase not in TERMINAL:
             self._tick(inputs)
         if s.error and s.phase != Phase.FAILED:
@@ -432,7 +463,7 @@ class SubgoalBehaviour:
         if self._s.invalidations > self.config.max_invalidations:
             self._terminate(inputs, FailureCategory.PLANNING, "the map invalidated the goal too often")
             return False
-        need_goal = self._s.phase not in (Phase.GRASP_CLOSE, Phase.GRASP_LIFT)
+        need_goal = self._s.phase not in (Phase.GRASP_CLOSE, Phase.GRASP_LIFT, Phase.GRASP_RETREAT)
         # A goal the map invalidated does not use up its stage's goal budget.
         stage = {Phase.PREGRASP: Stage.PREGRASP, Phase.OBSERVE: Stage.OBSERVE}.get(self._s.phase)
         if need_goal and stage is not None and self._s.goals_issued[stage] > 0:
@@ -459,6 +490,7 @@ class SubgoalBehaviour:
 
     def _start_grasp(self, inputs: PolicyInputs, p: SubgoalProposal, reason: str) -> None:
         """Starts the grasp execution phases with a grasp proposal (GRASP_MOVE first)."""
+        self._s.q_pregrasp = np.asarray(p.q_goal, float)
         self._s.q_grasp = np.asarray(p.q_grasp, float)
         lift = self.config.lift_height if p.lift_height is None else min(p.lift_height, self.config.lift_height)
         self._s.q_lift = layout.raised_torso(self._s.q_grasp, lift)
@@ -471,7 +503,11 @@ class SubgoalBehaviour:
             self._s.close_started = inputs.time
             self._set_goal(inputs, Phase.GRASP_CLOSE, self._s.q_grasp, "grasp pose reached: closing")
         elif self._s.phase == Phase.GRASP_LIFT:
-            self._transition(inputs, Phase.SUCCEEDED, "lifted")
+            if not self._retry_empty_grasp(inputs):
+                self._transition(inputs, Phase.SUCCEEDED, "lifted")
+        elif self._s.phase == Phase.GRASP_RETREAT:
+            self._transition(inputs, Phase.IDLE, "backed off from the empty grasp: resampling")
+            return True
         elif self._s.phase in (Phase.PREGRASP, Phase.OBSERVE):
             # New base, new views: the grasp stage is worth another try.
             self._s.grasp_blocked_at = None
@@ -492,6 +528,24 @@ class SubgoalBehaviour:
         if stage == Stage.GRASP:
             state.grasp_blocked_at = np.asarray(inputs.q, float)[layout.BASE_XY].copy()
         self._transition(inputs, Phase.IDLE, f"motion to the {stage.value} goal failed: resampling")
+        return True
+
+    def _retry_empty_grasp(self, inputs: PolicyInputs) -> bool:
+        """When the closing or lifting gripper holds nothing and retries are
+        left: records the grasp as failed and backs off to its pre-grasp pose
+        (at the torso height reached, so a half-lifted gripper does not sweep
+        back down through the object). True when it did."""
+        s, cfg = self._s, self.config
+        opening = inputs.gripper_opening
+        if (opening is None or opening >= cfg.empty_gripper_opening or len(s.failed_grasps) >= cfg.max_grasp_retries
+                or s.q_pregrasp is None):
+            return False
+        s.failed_grasps = (*s.failed_grasps, FetchKinematics.instance().gripper_pose(s.q_grasp))
+        q_back = s.q_pregrasp.copy()
+        q_back[layout.TORSO] = max(q_back[layout.TORSO], float(np.asarray(inputs.q)[layout.TORSO]))
+        self._set_goal(inputs, Phase.GRASP_RETREAT, q_back,
+                       f"the gripper closed on nothing ({1000 * opening:.1f} mm): backing off to try another grasp "
+                       f"({len(s.failed_grasps)}/{cfg.max_grasp_retries})")
         return True
 
     # -- tree helpers -------------------------------------------------------
@@ -556,7 +610,7 @@ class SubgoalBehaviour:
         closed = self._s.phase in (Phase.GRASP_CLOSE, Phase.GRASP_LIFT, Phase.SUCCEEDED)
         if self._s.phase in (Phase.IDLE, Phase.FAILED, Phase.SUCCEEDED) or self._s.q_goal is None:
             motion, q_goal = "hold", np.asarray(inputs.q, float).copy() if self._s.q_goal is None else self._s.q_goal
-        elif self._s.phase in (Phase.GRASP_APPROACH, Phase.GRASP_LIFT):
+        elif self._s.phase in (Phase.GRASP_APPROACH, Phase.GRASP_LIFT, Phase.GRASP_RETREAT):
             motion, q_goal = "linear", self._s.q_goal
         elif self._s.phase == Phase.GRASP_CLOSE:
             motion, q_goal = "hold", self._s.q_goal

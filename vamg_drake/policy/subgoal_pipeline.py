@@ -37,7 +37,13 @@ from vamg_drake.planning.whole_body_planner import PlannerConfig
 from vamg_drake.policy.arm_chain import base_poses
 from vamg_drake.policy.behaviour_tree import FailureCategory, PolicyInputs, SubgoalProposal, SubgoalSamplers
 from vamg_drake.policy.grasp_candidates import AntipodalGraspConfig, GraspCandidates, GraspCandidateSource
-from vamg_drake.policy.grasp_ranking import GraspRankingConfig, pose_distance, pregrasp_poses, select_grasp_goal
+from vamg_drake.policy.grasp_ranking import (
+    GraspRankingConfig,
+    near_any_grasp,
+    pose_distance,
+    pregrasp_poses,
+    select_grasp_goal,
+)
 from vamg_drake.policy.ik import FastIk
 from vamg_drake.policy.kinematic_maps import KinematicMaps
 from vamg_drake.policy.learned_grasps import GraspSourceConfig, make_grasp_source
@@ -106,6 +112,12 @@ class SubgoalPipelineConfig:
     #: the target and, starting with the gripper around it, could sweep the
     #: object over (a metre or more of gripper travel to a goal a few cm away).
     pregrasp_at_aimed_grasp: bool = True
+    #: A grasp that closed on nothing (`PolicyInputs.failed_grasps`) rules out
+    #: the candidates within this distance of it [m] whose approach axes lie
+    #: within ``failed_grasp_angle`` [deg] of its (any roll: a ball squeezed
+    #: out of the fingertips is squeezed out at every roll).
+    failed_grasp_radius: float = 0.02
+    failed_grasp_angle: float = 30.0
     #: Enclosure test: rays from the target, blocked by a point within
     #: ``enclosure_ray_radius`` of the ray between ``enclosure_min_distance``
     #: (beyond the target object's own surface) and ``enclosure_range``.
@@ -286,11 +298,21 @@ class SubgoalPipeline:
         if problem:
             return SubgoalProposal.failure(problem, FailureCategory.PERCEPTION)
         candidates = self._grasp_candidates(inputs, p_WM, p_WT)
+        failed = inputs.failed_grasps
+        if failed is not None and len(candidates):
+            untried = ~self._near_failed(candidates.X_WG, failed)
+            if not np.any(untried):
+                return SubgoalProposal.failure(
+                    f"every grasp candidate is one that closed on nothing ({len(failed)} tried)",
+                    FailureCategory.SUBGOAL)
+            candidates = candidates.subset(np.flatnonzero(untried))
         if len(candidates) == 0:
             return SubgoalProposal.failure(f"no grasp candidates: {candidates.failure_reason}", FailureCategory.PERCEPTION)
         # The grasp the last pre-grasp was accepted for comes first (IK and
         # collision re-checked; the capability map already had its say).
         goal, aimed = None, self._aimed_grasp
+        if aimed is not None and failed is not None and self._near_failed(aimed[1][None], failed)[0]:
+            aimed = None
         if aimed is not None and np.linalg.norm(aimed[0][:2] - q[:2]) <= self.config.aimed_grasp_tolerance:
             q_aimed, X_aimed, width_aimed = aimed
             match = self._matching_pose(candidates.X_WG, X_aimed)
@@ -306,6 +328,10 @@ class SubgoalPipeline:
             return SubgoalProposal.failure(goal.failure_reason, category)
         _, head = self.visibility.check(goal.q_pregrasp[None], p_WT)
         return SubgoalProposal(True, goal.q_pregrasp, goal.q_grasp, head[0], lift_height=goal.lift_height)
+
+    def _near_failed(self, X_WG: np.ndarray, failed: np.ndarray) -> np.ndarray:
+        """(K,) True for the grasps X_WG (K, 4, 4) that repeat a failed one (`failed_grasp_radius`)."""
+        return near_any_grasp(X_WG, failed, self.config.failed_grasp_radius, np.radians(self.config.failed_grasp_angle))
 
     def _matching_pose(self, X_WP: np.ndarray, X_WQ: np.ndarray) -> int | None:
         """The index of the pose in X_WP (K, 4, 4) nearest to X_WQ (`pose_distance`),

@@ -11,10 +11,12 @@ from vamg_drake.robot.kinematics import NX
 
 class RobotStateSelector(LeafSystem):
     """Input: plant_state (full). Outputs: configuration (15,), velocity (15,),
-    whole_body_configuration (11,).
+    whole_body_configuration (11,), gripper_opening (1,).
 
     The first two in `kinematics.EXTENDED_JOINTS` order: q (11), head (2),
-    fingers (2); the last is q alone (`layout.WHOLE_BODY_JOINTS`).
+    fingers (2); whole_body_configuration is q alone
+    (`layout.WHOLE_BODY_JOINTS`); gripper_opening is the measured gap between
+    the fingers (the sum of the two finger joints) [m].
     """
 
     def __init__(self, num_positions: int, num_velocities: int, position_index: np.ndarray, velocity_index: np.ndarray):
@@ -26,12 +28,17 @@ class RobotStateSelector(LeafSystem):
         self.DeclareVectorOutputPort("configuration", NX, self._calc_q)
         self.DeclareVectorOutputPort("velocity", NX, self._calc_v)
         self.DeclareVectorOutputPort("whole_body_configuration", layout.NQ, self._calc_q11)
+        self.DeclareVectorOutputPort("gripper_opening", 1, self._calc_opening)
 
     def _calc_q(self, context, output: BasicVector) -> None:
         output.SetFromVector(self._state_port.Eval(context)[self._qi])
 
     def _calc_q11(self, context, output: BasicVector) -> None:
         output.SetFromVector(self._state_port.Eval(context)[self._qi[: layout.NQ]])
+
+    def _calc_opening(self, context, output: BasicVector) -> None:
+        fingers = self._state_port.Eval(context)[self._qi[NX - 2:]]
+        output.SetFromVector([float(np.sum(fingers))])
 
     def _calc_v(self, context, output: BasicVector) -> None:
         output.SetFromVector(self._state_port.Eval(context)[self._nq + self._vi])

@@ -46,6 +46,7 @@ class SubgoalPolicy(LeafSystem):
         - target (3-vector p_WT)
         - motion_feedback (MotionFeedback, optional)
         - target_cloud ((N, 3) array p_WS, optional: a dense cloud around the target for grasp candidates)
+        - gripper_opening (1-vector: the measured finger gap [m], optional: without it a grasp is never retried)
         output_ports:
         - goal (SubgoalCommand)
         - phase (str: "grasp" | "pre_grasp" | "observe" | "idle" | "succeeded" | "failed")
@@ -74,6 +75,7 @@ class SubgoalPolicy(LeafSystem):
         self._target_port = self.DeclareVectorInputPort("target", 3)
         self._feedback_port = self.DeclareAbstractInputPort("motion_feedback", AbstractValue.Make(MotionFeedback()))
         self._cloud_port = self.DeclareAbstractInputPort("target_cloud", AbstractValue.Make(np.zeros((0, 3))))
+        self._opening_port = self.DeclareVectorInputPort("gripper_opening", 1)
         self._command_index = self.DeclareAbstractState(AbstractValue.Make(SubgoalCommand.initial()))
         self._handled_index = self.DeclareAbstractState(AbstractValue.Make(MotionFeedback()))
         self._gripper_index = self.DeclareDiscreteState(BasicVector([layout.GRIPPER_MAX_OPENING]))
@@ -130,7 +132,8 @@ class SubgoalPolicy(LeafSystem):
         cloud = np.asarray(self._cloud_port.Eval(context), dtype=float) if self._cloud_port.HasValue(context) else None
         if context.get_time() < self._config.start_delay - 1e-9:
             return EventStatus.Succeeded()
-        inputs = PolicyInputs(context.get_time(), q, p_WM, target, cloud)
+        opening = float(self._opening_port.Eval(context)[0]) if self._opening_port.HasValue(context) else None
+        inputs = PolicyInputs(context.get_time(), q, p_WM, target, cloud, opening)
         event = self._event(context, q, command, state)
         behaviour, new_command = self._behaviour.step(self.behaviour_state(context), inputs, event)
         state.get_mutable_abstract_state(self._behaviour_index).set_value(behaviour)
