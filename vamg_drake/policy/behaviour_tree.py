@@ -423,9 +423,7 @@ class SubgoalBehaviour:
         elif event == MotionEvent.REPLANNED:
             need_goal = self._on_replanned(inputs)
         if s.phase == Phase.GRASP_CLOSE and s.close_started is not None:
-            if self._retry_empty_grasp(inputs):
-                pass
-            elif inputs.time - s.close_started >= self.config.close_duration:
+            if not self._retry_empty_grasp(inputs) and inputs.time - s.close_started >= self.config.close_duration:
                 self._set_goal(inputs, Phase.GRASP_LIFT, s.q_lift, "gripper closed: lifting")
         elif s.phase == Phase.GRASP_LIFT:
             self._retry_empty_grasp(inputs)
