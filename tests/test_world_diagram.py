@@ -6,7 +6,7 @@ from pydrake.systems.analysis import Simulator
 
 from scenes import box_room_scenario, table
 from vamg_drake.diagram import DiagramConfig, build_diagram
-from vamg_drake.robot.kinematics import FetchKinematics
+from vamg_drake.robot.kinematics import FINGER_SLICE, FetchKinematics
 from vamg_drake.world.clutter_sleep import ClutterSleepConfig, sleeping_objects
 from vamg_drake.world.episode_monitor import COLLISION, PLANNING, RUNNING, SUCCESS, Contact, EpisodeJudge
 from vamg_drake.world.scenario import Box, Furniture, Part, PlanarPose
@@ -248,5 +248,5 @@ def test_gripper_opening_is_the_measured_gap_between_the_fingers():
     ed, sim, _ = _simulate(box_room_scenario(), 0.5)
     V = _eval(ed.robot_state, "configuration", sim)
     opening = _eval(ed.robot_state, "gripper_opening", sim)
-    assert opening.shape == (1,) and opening[0] == pytest.approx(V[13] + V[14])
+    assert opening.shape == (1,) and opening[0] == pytest.approx(V[FINGER_SLICE].sum())
     assert opening[0] == pytest.approx(0.1, abs=0.005)  # the scripted driver holds the gripper open

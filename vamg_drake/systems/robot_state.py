@@ -6,7 +6,7 @@ import numpy as np
 from pydrake.systems.framework import BasicVector, LeafSystem
 
 from vamg_drake.robot import layout
-from vamg_drake.robot.kinematics import NX
+from vamg_drake.robot.kinematics import FINGER_SLICE, NX
 
 
 class RobotStateSelector(LeafSystem):
@@ -37,7 +37,7 @@ class RobotStateSelector(LeafSystem):
         output.SetFromVector(self._state_port.Eval(context)[self._qi[: layout.NQ]])
 
     def _calc_opening(self, context, output: BasicVector) -> None:
-        fingers = self._state_port.Eval(context)[self._qi[NX - 2:]]
+        fingers = self._state_port.Eval(context)[self._qi[FINGER_SLICE]]
         output.SetFromVector([float(np.sum(fingers))])
 
     def _calc_v(self, context, output: BasicVector) -> None:
