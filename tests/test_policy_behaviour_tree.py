@@ -82,6 +82,36 @@ def test_the_lift_is_the_grasp_proposal_s_when_it_gives_one(proposed, lifted) ->
     assert cmd.q_goal[layout.TORSO] == pytest.approx(q_grasp[layout.TORSO] + lifted)
 
 
+def test_a_grasp_proposed_with_a_pull_out_pulls_then_lifts_from_there() -> None:
+    q = layout.stow_configuration(0, 0, 0)
+    q_grasp, q_pull = q + 0.01, q + 0.03
+
+    class PulledGrasp:
+        def __call__(self, inputs: PolicyInputs) -> SubgoalProposal:
+            return SubgoalProposal(True, q, q_grasp, np.zeros(2), lift_height=0.12, q_pull=q_pull)
+
+    fail = ScriptedSampler("pregrasp", [False])
+    bt = Stepper(SubgoalBehaviour(SubgoalSamplers(PulledGrasp(), fail, fail), BehaviourConfig(lift_height=0.15)))
+    cmd = bt.step(_inputs())
+    cmd = bt.step(_inputs(1.0, cmd.q_goal), MotionEvent.REACHED)
+    cmd = bt.step(_inputs(2.0, cmd.q_goal), MotionEvent.REACHED)
+    pull = bt.step(_opening_inputs(3.1, cmd.q_goal, 0.02))
+    assert pull.phase == Phase.GRASP_PULL and pull.motion == "linear" and pull.gripper_opening == 0.0
+    np.testing.assert_array_equal(pull.q_goal, q_pull)
+    lift = bt.step(_opening_inputs(4.0, pull.q_goal, 0.02), MotionEvent.REACHED)
+    assert lift.phase == Phase.GRASP_LIFT and lift.gripper_opening == 0.0
+    assert lift.q_goal[layout.TORSO] == pytest.approx(q_pull[layout.TORSO] + 0.12)
+    np.testing.assert_array_equal(np.delete(lift.q_goal, layout.TORSO), np.delete(q_pull, layout.TORSO))
+    assert bt.step(_opening_inputs(5.0, lift.q_goal, 0.02), MotionEvent.REACHED).phase == Phase.SUCCEEDED
+    # A grasp that slips out while being pulled backs off like one that slips while lifting.
+    bt = Stepper(SubgoalBehaviour(SubgoalSamplers(PulledGrasp(), fail, fail), BehaviourConfig()))
+    cmd = bt.step(_inputs())
+    cmd = bt.step(_inputs(1.0, cmd.q_goal), MotionEvent.REACHED)
+    cmd = bt.step(_inputs(2.0, cmd.q_goal), MotionEvent.REACHED)
+    pull = bt.step(_opening_inputs(3.1, cmd.q_goal, 0.02))
+    assert bt.step(_opening_inputs(3.5, pull.q_goal, 0.0)).phase == Phase.GRASP_RETREAT
+
+
 def test_fallback_order_grasp_pregrasp_observe_fail() -> None:
     bt, s = _make([False], [False], [True])
     cmd = bt.step(_inputs())
@@ -289,6 +319,26 @@ def test_a_step_is_a_function_of_the_state_and_the_inputs() -> None:
     np.testing.assert_array_equal(failed.q_goal, failed_again.q_goal)
     assert failed.q_goal[0] != cmd.q_goal[0]
     assert first.motion_failure_counts["grasp"] == 0  # the step did not change the state it was given
+
+
+def test_the_bases_of_failed_pre_grasp_motions_are_given_to_the_samplers() -> None:
+    seen = []
+
+    class RecordingPregrasp(ScriptedSampler):
+        def __call__(self, inputs: PolicyInputs) -> SubgoalProposal:
+            seen.append(None if inputs.failed_bases is None else np.array(inputs.failed_bases))
+            return super().__call__(inputs)
+
+    samplers = SubgoalSamplers(ScriptedSampler("grasp", [False]), RecordingPregrasp("pregrasp", [True]),
+                               ScriptedSampler("observe", [True]))
+    bt = Stepper(SubgoalBehaviour(samplers))
+    first = bt.step(_inputs())
+    assert first.phase == Phase.PREGRASP and seen == [None]
+    second = bt.step(_inputs(1.0), MotionEvent.FAILED)
+    assert second.phase == Phase.PREGRASP
+    np.testing.assert_array_equal(seen[1], [first.q_goal[layout.BASE_XY]])
+    bt.step(_inputs(2.0), MotionEvent.INVALIDATED)  # an invalidated goal is not a failed one
+    assert len(seen[2]) == 1
 
 
 class RecordingGrasp(ScriptedSampler):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses as dc
+
 import numpy as np
 import pytest
 
@@ -310,6 +312,79 @@ def test_rank_and_select_with_capability_ik_and_collision() -> None:
     unreachable = select_grasp_goal(cands, np.zeros(11), np.eye(4), np.zeros(3),
                                     lambda X, q: (np.zeros((len(X), 11)), np.zeros(len(X), bool)), is_free, nowhere)
     assert not unreachable.success and "capability map calls none reachable" in unreachable.failure_reason
+
+
+def test_other_arm_solutions_are_tried_when_the_seeded_ones_collide() -> None:
+    """The real IK: where the arm configuration found from the current seed
+    collides (here: any elbow position near the seeded solution's), another
+    solution reaching the same grasp is found from random arm seeds; without
+    the extra rounds the grasp is refused."""
+    from vamg_drake.policy.ik import FastIk
+    from vamg_drake.robot.kinematics import FetchKinematics
+
+    kin = FetchKinematics.instance()
+    q0 = layout.stow_configuration(0.0, 0.0, 0.0)
+    q0[layout.TORSO] = 0.2
+    X_grasp = np.eye(4)
+    X_grasp[:3, 3] = [0.75, 0.0, 0.9]  # a horizontal grasp in front of the robot
+    cands = GraspCandidates(X_grasp[None], np.ones(1), np.full(1, 0.05))
+    q_seeded, ok = FastIk().solve_arm(pregrasp_poses(X_grasp[None], 0.05), q0)
+    assert ok[0]
+    elbow = lambda q: np.atleast_3d(kin.frame_pose("elbow_flex_link", q))[..., :3, 3]  # noqa: E731
+    p_elbow = elbow(q_seeded)[0]
+
+    def is_free(q: np.ndarray) -> np.ndarray:  # a post where the seeded elbow goes
+        return np.linalg.norm(elbow(q) - p_elbow, axis=-1) > 0.15
+
+    args = (cands, q0, np.eye(4), np.zeros(3), FastIk().solve_arm, is_free, None)
+    refused = select_grasp_goal(*args, GraspRankingConfig(ik_alternatives=0))
+    assert not refused.success and "collision" in refused.failure_reason
+    goal = select_grasp_goal(*args, GraspRankingConfig(ik_alternatives=3), rng=np.random.default_rng(1))
+    assert goal.success, goal.failure_reason
+    assert is_free(goal.q_pregrasp[None])[0]
+    np.testing.assert_allclose(kin.gripper_pose(goal.q_grasp)[:3, 3], X_grasp[:3, 3], atol=0.003)
+    np.testing.assert_array_equal(goal.q_grasp[:4], q0[:4])  # base and torso unchanged
+    with pytest.raises(ValueError, match="ik_alternatives"):
+        GraspRankingConfig(ik_alternatives=-1)
+
+
+def test_a_grasp_under_an_overhang_is_pulled_out_before_the_lift() -> None:
+    """The real IK: a horizontal grasp under a board 10 cm above the gripper
+    cannot lift in place; pulled 12 cm back out from under the board it can,
+    and a grasp from above (nowhere to pull to) is refused."""
+    from vamg_drake.policy.ik import FastIk
+    from vamg_drake.robot.kinematics import FetchKinematics
+
+    kin = FetchKinematics.instance()
+    q0 = layout.stow_configuration(0.0, 0.0, 0.0)
+    q0[layout.TORSO] = 0.2
+    X_grasp = np.eye(4)
+    X_grasp[:3, 3] = [0.75, 0.0, 0.8]  # approach along +x of the base
+    cands = GraspCandidates(X_grasp[None], np.ones(1), np.full(1, 0.05))
+    board_x = 0.68  # the board covers x >= 0.68 from z = 0.9 up
+
+    def is_free(q: np.ndarray) -> np.ndarray:
+        p = kin.gripper_pose(np.atleast_2d(q))[:, :3, 3]
+        return ~((p[:, 0] >= board_x) & (p[:, 2] + 0.04 >= 0.9))  # the gripper's top against the board
+
+    config = GraspRankingConfig(check_grasp_collision=True, ik_alternatives=0)
+    args = (cands, q0, np.eye(4), np.zeros(3), FastIk().solve_arm, is_free, None)
+    in_place = select_grasp_goal(*args, dc.replace(config, pull_distance=0.0), lift_height=0.15)
+    assert not in_place.success and "collision" in in_place.failure_reason
+    goal = select_grasp_goal(*args, config, lift_height=0.15)
+    assert goal.success and goal.q_pull is not None and goal.lift_height >= config.min_lift_height
+    p_pull = kin.gripper_pose(goal.q_pull)[:3, 3]
+    np.testing.assert_allclose(p_pull, X_grasp[:3, 3] + [-config.pull_distance, 0.0, config.pull_raise], atol=0.003)
+    assert p_pull[0] < board_x
+    np.testing.assert_array_equal(goal.q_pull[:4], goal.q_grasp[:4])  # base and torso: the grasp's
+    free_everywhere = select_grasp_goal(cands, q0, np.eye(4), np.zeros(3), FastIk().solve_arm,
+                                        lambda q: np.ones(len(q), bool), None, config, lift_height=0.15)
+    assert free_everywhere.success and free_everywhere.q_pull is None  # lifts in place where it can
+    X_down = np.eye(4)
+    X_down[:3, :3] = [[0, 0, 1], [0, 1, 0], [-1, 0, 0]]  # approach straight down
+    X_down[:3, 3] = [0.75, 0.0, 0.85]
+    down = GraspCandidates(X_down[None], np.ones(1), np.full(1, 0.05))
+    assert not select_grasp_goal(down, *args[1:], config, lift_height=0.15).success
 
 
 @pytest.mark.parametrize("voxel", [0.01, 0.02])

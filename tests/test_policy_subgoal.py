@@ -139,6 +139,14 @@ def test_pregrasp_bases_near_a_tried_base_come_last() -> None:
         tried = p.pregrasp.sample(points, target, first.q_goal, is_free, np.random.default_rng(seed),
                                   tried_xy=first.q_goal[None, :2])
         assert np.linalg.norm(tried.q[:2] - first.q_goal[:2]) > radius
+        # A base whose motion failed (the behaviour's `failed_bases`) comes last too,
+        # asked from where the robot still is.
+        p = SubgoalPipeline(KinematicMaps.load_or_build(), HeadCameraConfig(), DepthToPointsConfig().depth_max,
+                            seed=seed)
+        first = p.sample_pregrasp(PolicyInputs(0.0, q0, points, target, dense))
+        failed = p.sample_pregrasp(PolicyInputs(5.0, q0, points, target, dense, failed_bases=first.q_goal[None, :2]))
+        assert failed.success, failed.failure_reason
+        assert np.linalg.norm(failed.q_goal[:2] - first.q_goal[:2]) > radius
 
 
 def test_pregrasp_samples_are_collision_free_ik_valid_and_see_the_target(pipeline, scene) -> None:

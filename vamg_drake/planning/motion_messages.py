@@ -24,6 +24,7 @@ class Phase(enum.Enum):
     GRASP_MOVE = "grasp_move"  # planned motion to the pre-grasp pose of a grasp
     GRASP_APPROACH = "grasp_approach"  # linear approach to the grasp pose
     GRASP_CLOSE = "grasp_close"
+    GRASP_PULL = "grasp_pull"  # linear motion pulling the closed grasp out from under what overhangs it
     GRASP_LIFT = "grasp_lift"
     GRASP_RETREAT = "grasp_retreat"  # the gripper closed on nothing: linear motion back to the pre-grasp pose
     PREGRASP = "pre_grasp"
@@ -33,7 +34,8 @@ class Phase(enum.Enum):
 
 
 TERMINAL = (Phase.SUCCEEDED, Phase.FAILED)
-GRASP_PHASES = (Phase.GRASP_MOVE, Phase.GRASP_APPROACH, Phase.GRASP_CLOSE, Phase.GRASP_LIFT, Phase.GRASP_RETREAT)
+GRASP_PHASES = (Phase.GRASP_MOVE, Phase.GRASP_APPROACH, Phase.GRASP_CLOSE, Phase.GRASP_PULL, Phase.GRASP_LIFT,
+                Phase.GRASP_RETREAT)
 
 
 def stage_name(phase: Phase) -> str:

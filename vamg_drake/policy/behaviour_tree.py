@@ -12,9 +12,11 @@ reached, after a failed motion, or when the map invalidates the goal)::
 Each ``GenerateGoal`` calls an injectable sampler (``SubgoalSamplers``); the
 first stage whose sampler succeeds sets the goal. Execution of a grasp goal is
 a fixed sequence of phases: move to the pre-grasp (planned), linear approach,
-close the gripper, lift (torso up). A grasp whose fingers close on nothing
+close the gripper, pull out (linear, only for a grasp proposed with
+``q_pull``: its lift in place was blocked by what overhangs the target), lift
+(torso up). A grasp whose fingers close on nothing
 (the measured opening ``PolicyInputs.gripper_opening`` below
-``empty_gripper_opening`` while closing or lifting: the object slipped out or
+``empty_gripper_opening`` while closing, pulling or lifting: the object slipped out or
 was pushed away) backs off along the approach to its pre-grasp pose and the
 tree is ticked again, with that grasp excluded from the candidates
 (``PolicyInputs.failed_grasps``), up to ``max_grasp_retries`` times; the last
@@ -92,6 +94,10 @@ class PolicyInputs:
     #: (K, 4, 4) gripper poses X_WG of this episode's grasps that closed on
     #: nothing (set by the behaviour; the grasp sampler leaves them out).
     failed_grasps: np.ndarray | None = None
+    #: (K, 2) base positions xy of this episode's pre-grasp goals whose
+    #: motion failed (set by the behaviour; the pre-grasp sampler tries
+    #: bases near them last).
+    failed_bases: np.ndarray | None = None
 
 
 @dc.dataclass(frozen=True)
@@ -107,6 +113,8 @@ class SubgoalProposal:
         category: the failure category this failure points at.
         lift_height: grasp stage only: how far to raise the torso after
             closing [m] (None: `BehaviourConfig.lift_height`).
+        q_pull: grasp stage only: (11,) where the closed gripper pulls the
+            object out before the lift (None: it lifts in place).
     """
 
     success: bool
@@ -116,6 +124,7 @@ class SubgoalProposal:
     failure_reason: str = ""
     category: FailureCategory = FailureCategory.NONE
     lift_height: float | None = None
+    q_pull: np.ndarray | None = None
 
     @staticmethod
     def failure(reason: str, category: FailureCategory) -> "SubgoalProposal":
@@ -211,9 +220,10 @@ class BehaviourState:
 
     Attributes:
         phase, goal_id, q_goal, head, reason: the current goal (see `SubgoalCommand`).
-        q_pregrasp, q_grasp, q_lift: the pre-grasp, grasp and lift
-            configurations of the grasp being executed.
+        q_pregrasp, q_grasp, q_pull, q_lift: the pre-grasp, grasp, pull-out
+            (None: none) and lift configurations of the grasp being executed.
         failed_grasps: gripper poses X_WG (4, 4) of the grasps that closed on nothing.
+        failed_bases: base positions (2,) of the pre-grasp goals whose motion failed.
         close_started: when the gripper began to close [s].
         total_failures: motion failures so far.
         invalidations: goal invalidations since the last reached goal.
@@ -236,8 +246,10 @@ class BehaviourState:
     q_goal: np.ndarray | None = None
     q_pregrasp: np.ndarray | None = None
     q_grasp: np.ndarray | None = None
+    q_pull: np.ndarray | None = None
     q_lift: np.ndarray | None = None
     failed_grasps: tuple[np.ndarray, ...] = ()
+    failed_bases: tuple[np.ndarray, ...] = ()
     head: np.ndarray = dc.field(default_factory=lambda: np.full(2, np.nan))
     close_started: float | None = None
     reason: str = ""
@@ -396,6 +408,8 @@ class SubgoalBehaviour:
         s = state.copy()
         if s.failed_grasps:
             inputs = dc.replace(inputs, failed_grasps=np.stack(s.failed_grasps))
+        if s.failed_bases:
+            inputs = dc.replace(inputs, failed_bases=np.stack(s.failed_bases))
         s.inputs = inputs
         for memory, saved in zip(self._memory, s.samplers):
             memory.load_state(saved)
@@ -424,8 +438,11 @@ class SubgoalBehaviour:
             need_goal = self._on_replanned(inputs)
         if s.phase == Phase.GRASP_CLOSE and s.close_started is not None:
             if not self._retry_empty_grasp(inputs) and inputs.time - s.close_started >= self.config.close_duration:
-                self._set_goal(inputs, Phase.GRASP_LIFT, s.q_lift, "gripper closed: lifting")
-        elif s.phase == Phase.GRASP_LIFT:
+                if s.q_pull is not None:
+                    self._set_goal(inputs, Phase.GRASP_PULL, s.q_pull, "gripper closed: pulling out before the lift")
+                else:
+                    self._set_goal(inputs, Phase.GRASP_LIFT, s.q_lift, "gripper closed: lifting")
+        elif s.phase in (Phase.GRASP_PULL, Phase.GRASP_LIFT):
             self._retry_empty_grasp(inputs)
         if need_goal and s.phase not in TERMINAL:
             self._tick(inputs)
@@ -461,7 +478,7 @@ class SubgoalBehaviour:
         if self._s.invalidations > self.config.max_invalidations:
             self._terminate(inputs, FailureCategory.PLANNING, "the map invalidated the goal too often")
             return False
-        need_goal = self._s.phase not in (Phase.GRASP_CLOSE, Phase.GRASP_LIFT, Phase.GRASP_RETREAT)
+        need_goal = self._s.phase not in (Phase.GRASP_CLOSE, Phase.GRASP_PULL, Phase.GRASP_LIFT, Phase.GRASP_RETREAT)
         # A goal the map invalidated does not use up its stage's goal budget.
         stage = {Phase.PREGRASP: Stage.PREGRASP, Phase.OBSERVE: Stage.OBSERVE}.get(self._s.phase)
         if need_goal and stage is not None and self._s.goals_issued[stage] > 0:
@@ -490,8 +507,9 @@ class SubgoalBehaviour:
         """Starts the grasp execution phases with a grasp proposal (GRASP_MOVE first)."""
         self._s.q_pregrasp = np.asarray(p.q_goal, float)
         self._s.q_grasp = np.asarray(p.q_grasp, float)
+        self._s.q_pull = None if p.q_pull is None else np.asarray(p.q_pull, float)
         lift = self.config.lift_height if p.lift_height is None else min(p.lift_height, self.config.lift_height)
-        self._s.q_lift = layout.raised_torso(self._s.q_grasp, lift)
+        self._s.q_lift = layout.raised_torso(self._s.q_grasp if self._s.q_pull is None else self._s.q_pull, lift)
         self._set_goal(inputs, Phase.GRASP_MOVE, p.q_goal, reason)
 
     def _on_reached(self, inputs: PolicyInputs) -> bool:
@@ -500,6 +518,9 @@ class SubgoalBehaviour:
         elif self._s.phase == Phase.GRASP_APPROACH:
             self._s.close_started = inputs.time
             self._set_goal(inputs, Phase.GRASP_CLOSE, self._s.q_grasp, "grasp pose reached: closing")
+        elif self._s.phase == Phase.GRASP_PULL:
+            if not self._retry_empty_grasp(inputs):
+                self._set_goal(inputs, Phase.GRASP_LIFT, self._s.q_lift, "pulled out: lifting")
         elif self._s.phase == Phase.GRASP_LIFT:
             if not self._retry_empty_grasp(inputs):
                 self._transition(inputs, Phase.SUCCEEDED, "lifted")
@@ -525,6 +546,9 @@ class SubgoalBehaviour:
             return False
         if stage == Stage.GRASP:
             state.grasp_blocked_at = np.asarray(inputs.q, float)[layout.BASE_XY].copy()
+        if stage == Stage.PREGRASP and state.q_goal is not None:
+            state.failed_bases = (*state.failed_bases, np.asarray(state.q_goal, float)[layout.BASE_XY].copy())
+            state.inputs = dc.replace(state.inputs, failed_bases=np.stack(state.failed_bases))  # for this tick
         self._transition(inputs, Phase.IDLE, f"motion to the {stage.value} goal failed: resampling")
         return True
 
@@ -605,10 +629,10 @@ class SubgoalBehaviour:
         self._transition(inputs, Phase.FAILED, f"{self._s.failure.value}: {reason}")
 
     def _command(self, inputs: PolicyInputs) -> SubgoalCommand:
-        closed = self._s.phase in (Phase.GRASP_CLOSE, Phase.GRASP_LIFT, Phase.SUCCEEDED)
+        closed = self._s.phase in (Phase.GRASP_CLOSE, Phase.GRASP_PULL, Phase.GRASP_LIFT, Phase.SUCCEEDED)
         if self._s.phase in (Phase.IDLE, Phase.FAILED, Phase.SUCCEEDED) or self._s.q_goal is None:
             motion, q_goal = "hold", np.asarray(inputs.q, float).copy() if self._s.q_goal is None else self._s.q_goal
-        elif self._s.phase in (Phase.GRASP_APPROACH, Phase.GRASP_LIFT, Phase.GRASP_RETREAT):
+        elif self._s.phase in (Phase.GRASP_APPROACH, Phase.GRASP_PULL, Phase.GRASP_LIFT, Phase.GRASP_RETREAT):
             motion, q_goal = "linear", self._s.q_goal
         elif self._s.phase == Phase.GRASP_CLOSE:
             motion, q_goal = "hold", self._s.q_goal

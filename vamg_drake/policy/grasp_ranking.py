@@ -5,7 +5,8 @@ capability map calls reachable from the current base, pick ``N_diverse = 20`` by
 farthest-point sampling in SE(3) with
 ``d(T1, T2) = ||t1 - t2|| + 0.1 * angle(R1, R2)`` starting from the best score,
 sort them by ``score - 0.01 * ||t - t_ee,current||``, and return the first whose
-arm-only IK (base and torso fixed) succeeds and whose configuration is
+arm-only IK (base and torso fixed; from random arm seeds when the seeded
+solutions all fail) succeeds and whose configuration is
 collision-free. Each candidate's pre-grasp (5 cm back along -x of G) is solved
 and checked too, since the robot moves there first.
 """
@@ -57,6 +58,17 @@ class GraspRankingConfig:
     #: When the capability map calls no candidate reachable, try IK on the
     #: ranked candidates anyway (the map's bins are coarser than IK).
     ik_when_unreachable: bool = True
+    #: Rounds of IK from random arm seeds for the ranked grasps when no
+    #: grasp is IK- and collision-valid from the current configuration's
+    #: seed: the 7-joint arm reaches a grasp in many ways, and the first
+    #: found may put the elbow or forearm where another would not.
+    ik_alternatives: int = 3
+    #: A grasp whose lift in place is blocked (under a shelf board, a TV, a
+    #: cabinet's top) may instead first pull the object out: back this far
+    #: along its approach axis in the horizontal plane, `pull_raise` higher,
+    #: then lift from there [m] (0: never).
+    pull_distance: float = 0.12
+    pull_raise: float = 0.02
 
     def __post_init__(self) -> None:
         self.validate()
@@ -65,7 +77,7 @@ class GraspRankingConfig:
         """Raises ValueError naming the bad field."""
         if self.n_diverse < 1:
             raise ValueError(f"GraspRankingConfig.n_diverse must be >= 1, got {self.n_diverse}")
-        for name in ("approach_checks", "lift_checks"):
+        for name in ("approach_checks", "lift_checks", "ik_alternatives", "pull_distance", "pull_raise"):
             if getattr(self, name) < 0:
                 raise ValueError(f"GraspRankingConfig.{name} must be >= 0, got {getattr(self, name)}")
         if not (np.isfinite(self.min_lift_height) and self.min_lift_height >= 0.0):
@@ -86,6 +98,9 @@ class GraspGoal:
         failure_reason: empty on success.
         lift_height: how far the torso may lift this grasp [m] (None: as far
             as the behaviour lifts; the lift was not checked).
+        q_pull: (11,) where the closed gripper first pulls the object out
+            before lifting (None: it lifts in place; see
+            `GraspRankingConfig.pull_distance`).
     """
 
     success: bool
@@ -98,6 +113,7 @@ class GraspGoal:
     num_tried: int
     failure_reason: str = ""
     lift_height: float | None = None
+    q_pull: np.ndarray | None = None
 
 
 def rotation_angle(R1: np.ndarray, R2: np.ndarray) -> np.ndarray:
@@ -211,13 +227,17 @@ def select_grasp_goal(
     config: GraspRankingConfig | None = None,
     grasp_is_free: IsFreeFn | None = None,
     lift_height: float = 0.0,
+    rng: np.random.Generator | None = None,
 ) -> GraspGoal:
     """The paper's grasp goal sampling: the first IK- and collision-valid ranked grasp.
 
     `is_free` checks the pre-grasps; `grasp_is_free` (default `is_free`) the
     grasps, the approaches to them and the lifts after them (the torso raised
     by up to `lift_height`; `check_grasp_collision`), which a grasp source may
-    have checked for the gripper itself at finer resolution.
+    have checked for the gripper itself at finer resolution. Where the
+    seeded IK solution of every ranked grasp fails, up to `ik_alternatives`
+    rounds solve the failing ones again from random arm seeds drawn from
+    `rng` (default: a generator seeded with 0).
     """
     config = config or GraspRankingConfig()
     grasp_is_free = grasp_is_free or is_free
@@ -232,38 +252,27 @@ def select_grasp_goal(
         return fail("no grasp candidate is reachable from the current base (capability map)")
     X_grasp = candidates.X_WG[order]
     X_pre = pregrasp_poses(X_grasp, config.pregrasp_offset)
-    # One batched IK call for the pre-grasps; each grasp is then seeded from its pre-grasp.
-    q_pre, ok_pre = solve_arm_ik(X_pre, q_current)
-    q_grasp = np.tile(np.asarray(q_current, dtype=float), (order.size, 1))
-    ok_grasp = np.zeros(order.size, dtype=bool)
-    if np.any(ok_pre):
-        q_grasp[ok_pre], ok_grasp[ok_pre] = solve_arm_ik(X_grasp[ok_pre], q_pre[ok_pre])
-    valid = ok_pre & ok_grasp
+    check = lambda idx, seeds: _validate_grasps(  # noqa: E731
+        X_grasp[idx], X_pre[idx], seeds, solve_arm_ik, is_free, grasp_is_free, config, lift_height)
+    q_pre, q_grasp, valid, free, lift, q_pull = check(np.arange(order.size), np.asarray(q_current, dtype=float))
+    # The arm is redundant: where the seeded solution of every grasp collides
+    # (the forearm over a chair back, the elbow in a shelf), other arm
+    # configurations reaching the same grasp may not.
+    rng = rng if rng is not None else np.random.default_rng(0)
+    for _ in range(config.ik_alternatives):
+        if np.any(valid & free):
+            break
+        redo = np.flatnonzero(~(valid & free))
+        seeds = np.tile(np.asarray(q_current, dtype=float), (redo.size, 1))
+        seeds[:, layout.ARM] = rng.uniform(layout.SAMPLE_LOWER[layout.ARM], layout.SAMPLE_UPPER[layout.ARM],
+                                           (redo.size, seeds[:, layout.ARM].shape[1]))
+        alt = check(redo, seeds)
+        better = (alt[2] & alt[3]) | (alt[2] & ~valid[redo])
+        for mine, theirs in zip((q_pre, q_grasp, valid, free, lift, q_pull), alt):
+            mine[redo[better]] = theirs[better]
     if not np.any(valid):
         why = "" if n_reachable else "; the capability map calls none reachable"
         return fail(f"IK failed for every ranked grasp (base and torso fixed{why})", n_reachable, order.size)
-    free = np.zeros(order.size, dtype=bool)
-    free[valid] = np.asarray(is_free(q_pre[valid]), dtype=bool)
-    if config.check_grasp_collision:
-        free[valid] &= np.asarray(grasp_is_free(q_grasp[valid]), dtype=bool)
-        for s in np.arange(1, config.approach_checks + 1) / (config.approach_checks + 1):
-            check = valid & free
-            if not check.any():
-                break
-            q_mid = q_pre[check] + s * layout.wrap_configuration(q_grasp[check] - q_pre[check])
-            free[check] &= np.asarray(grasp_is_free(q_mid), dtype=bool)
-    lift = np.full(order.size, np.nan)
-    if config.check_grasp_collision and lift_height > 0.0 and config.lift_checks:
-        lift[valid & free] = 0.0
-        for height in lift_height * np.arange(1, config.lift_checks + 1) / config.lift_checks:
-            check = valid & free & (lift >= height - lift_height / config.lift_checks - 1e-12)
-            if not check.any():
-                break
-            ok = np.asarray(grasp_is_free(layout.raised_torso(q_grasp[check], height)), dtype=bool)
-            lift[np.flatnonzero(check)[ok]] = height
-        # The torso stops at its upper limit: a grasp high up lifts only what is left.
-        lift = np.minimum(lift, layout.Q_UPPER[layout.TORSO] - q_grasp[:, layout.TORSO])
-        free &= ~(lift < min(config.min_lift_height, lift_height) - 1e-12)
     winners = np.flatnonzero(valid & free)
     if winners.size == 0:
         return fail("every IK-valid ranked grasp is in collision with the map", n_reachable, order.size)
@@ -272,4 +281,115 @@ def select_grasp_goal(
     return GraspGoal(
         True, q_grasp[i], q_pre[i], X_grasp[i], int(order[i]), len(candidates), n_reachable, i + 1,
         lift_height=None if np.isnan(lift[i]) else float(lift[i]),
+        q_pull=None if np.isnan(q_pull[i, 0]) else q_pull[i],
     )
+
+
+def _validate_grasps(
+    X_grasp: np.ndarray,
+    X_pre: np.ndarray,
+    seeds: np.ndarray,
+    solve_arm_ik: ArmIkFn,
+    is_free: IsFreeFn,
+    grasp_is_free: IsFreeFn,
+    config: GraspRankingConfig,
+    lift_height: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """IK and collision checks of grasps X_grasp (K, 4, 4) and their pre-grasps.
+
+    The pre-grasps are solved from `seeds` ((11,) or (K, 11)), each grasp from
+    its pre-grasp. Returns (q_pre (K, 11), q_grasp (K, 11), valid (K,): both
+    IK solved, free (K,): collision-free (see `select_grasp_goal`), lift (K,):
+    the highest free lift [m], NaN where not checked, q_pull (K, 11): where
+    the lift starts after pulling the object out, NaN where it lifts in place).
+    """
+    K = X_grasp.shape[0]
+    q_pre, ok_pre = solve_arm_ik(X_pre, seeds)
+    q_pre = np.array(q_pre, dtype=float)
+    q_grasp = np.array(np.broadcast_to(seeds, (K, seeds.shape[-1])), dtype=float)
+    ok_grasp = np.zeros(K, dtype=bool)
+    if np.any(ok_pre):
+        q_grasp[ok_pre], ok_grasp[ok_pre] = solve_arm_ik(X_grasp[ok_pre], q_pre[ok_pre])
+    valid = np.asarray(ok_pre, dtype=bool) & ok_grasp
+    free = np.zeros(K, dtype=bool)
+    lift = np.full(K, np.nan)
+    q_pull = np.full((K, q_grasp.shape[1]), np.nan)
+    if not np.any(valid):
+        return q_pre, q_grasp, valid, free, lift, q_pull
+    free[valid] = np.asarray(is_free(q_pre[valid]), dtype=bool)
+    if config.check_grasp_collision:
+        free[valid] &= np.asarray(grasp_is_free(q_grasp[valid]), dtype=bool)
+        free[valid & free] = _linear_motion_free(q_pre[valid & free], q_grasp[valid & free], grasp_is_free,
+                                                 config.approach_checks)
+    if config.check_grasp_collision and lift_height > 0.0 and config.lift_checks:
+        lift[valid & free] = _free_lift(q_grasp[valid & free], grasp_is_free, lift_height, config.lift_checks)
+        needed = min(config.min_lift_height, lift_height) - 1e-12
+        blocked = np.flatnonzero(valid & free & (lift < needed))
+        if blocked.size and config.pull_distance > 0.0:
+            q_out, out_lift = _pull_out(X_grasp[blocked], q_grasp[blocked], solve_arm_ik, grasp_is_free, config,
+                                        lift_height)
+            better = out_lift >= needed
+            q_pull[blocked[better]], lift[blocked[better]] = q_out[better], out_lift[better]
+        free &= ~(lift < needed)
+    return q_pre, q_grasp, valid, free, lift, q_pull
+
+
+def _linear_motion_free(q_from: np.ndarray, q_to: np.ndarray, is_free: IsFreeFn, checks: int) -> np.ndarray:
+    """(K,) whether `checks` evenly spaced joint-space interpolants strictly
+    between q_from and q_to (K, 11) are free (the end points are not checked)."""
+    free = np.ones(q_from.shape[0], dtype=bool)
+    for s in np.arange(1, checks + 1) / (checks + 1):
+        if not free.any():
+            break
+        q_mid = q_from[free] + s * layout.wrap_configuration(q_to[free] - q_from[free])
+        free[free] = np.asarray(is_free(q_mid), dtype=bool)
+    return free
+
+
+def _free_lift(q: np.ndarray, is_free: IsFreeFn, lift_height: float, checks: int) -> np.ndarray:
+    """(K,) the highest of `checks` evenly spaced torso lifts up to
+    `lift_height` from q (K, 11) with every lower one free, clipped at the
+    torso's upper limit [m]."""
+    lift = np.zeros(q.shape[0])
+    for height in lift_height * np.arange(1, checks + 1) / checks:
+        check = lift >= height - lift_height / checks - 1e-12
+        if not check.any():
+            break
+        ok = np.asarray(is_free(layout.raised_torso(q[check], height)), dtype=bool)
+        lift[np.flatnonzero(check)[ok]] = height
+    # The torso stops at its upper limit: a grasp high up lifts only what is left.
+    return np.minimum(lift, layout.Q_UPPER[layout.TORSO] - q[:, layout.TORSO])
+
+
+def _pull_out(
+    X_grasp: np.ndarray,
+    q_grasp: np.ndarray,
+    solve_arm_ik: ArmIkFn,
+    is_free: IsFreeFn,
+    config: GraspRankingConfig,
+    lift_height: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pulling grasps X_grasp (K, 4, 4) out along their horizontal approach
+    before the lift (`GraspRankingConfig.pull_distance`). Returns (q_pull
+    (K, 11), lift (K,): the free lift from q_pull [m], -1 where the pull is
+    impossible: a near-vertical approach, no IK, or a collision on the way)."""
+    K = X_grasp.shape[0]
+    lift = np.full(K, -1.0)
+    back = -X_grasp[:, :3, 0].copy()
+    back[:, 2] = 0.0
+    norm = np.linalg.norm(back, axis=1)
+    ok = norm > 0.3  # within ~70 degrees of vertical there is no "out" to pull to
+    X_pull = np.array(X_grasp, copy=True)
+    X_pull[ok, :3, 3] += config.pull_distance * back[ok] / norm[ok, None]
+    X_pull[:, 2, 3] += config.pull_raise
+    q_pull = np.array(q_grasp, dtype=float, copy=True)
+    if ok.any():
+        q_pull[ok], solved = solve_arm_ik(X_pull[ok], q_grasp[ok])
+        ok[ok] = solved
+    if ok.any():
+        ok[ok] = np.asarray(is_free(q_pull[ok]), dtype=bool)
+    if ok.any():
+        ok[ok] = _linear_motion_free(q_grasp[ok], q_pull[ok], is_free, max(config.approach_checks, 3))
+    if ok.any():
+        lift[ok] = _free_lift(q_pull[ok], is_free, lift_height, config.lift_checks)
+    return q_pull, lift

@@ -7,7 +7,7 @@ method's YAML file states (``vamg_drake/bench/methods/``). Each strategy is a be
 with the interface of `SubgoalBehaviour` (``initial_state``, ``step(state,
 inputs, event) -> (state, command)``; its progress is in the
 `BehaviourState`) and reuses its grasp execution (GRASP_MOVE planned to
-the pre-grasp pose -> GRASP_APPROACH linear -> GRASP_CLOSE -> GRASP_LIFT, and
+the pre-grasp pose -> GRASP_APPROACH linear -> GRASP_CLOSE -> (GRASP_PULL) -> GRASP_LIFT, and
 GRASP_RETREAT from a grasp that closed on nothing) and its command building. Only the choice
 of goals differs; no py_trees tree is ticked.
 

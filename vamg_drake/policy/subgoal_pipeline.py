@@ -327,7 +327,8 @@ class SubgoalPipeline:
             category = FailureCategory.SUBGOAL if "collision" in goal.failure_reason else FailureCategory.REACHABILITY
             return SubgoalProposal.failure(goal.failure_reason, category)
         _, head = self.visibility.check(goal.q_pregrasp[None], p_WT)
-        return SubgoalProposal(True, goal.q_pregrasp, goal.q_grasp, head[0], lift_height=goal.lift_height)
+        return SubgoalProposal(True, goal.q_pregrasp, goal.q_grasp, head[0], lift_height=goal.lift_height,
+                               q_pull=goal.q_pull)
 
     def _near_failed(self, X_WG: np.ndarray, failed: np.ndarray) -> np.ndarray:
         """(K,) True for the grasps X_WG (K, 4, 4) that repeat a failed one (`failed_grasp_radius`)."""
@@ -358,7 +359,7 @@ class SubgoalPipeline:
         return select_grasp_goal(
             candidates, q, X_WB, p_WE, self.ik.solve_arm, is_free or self.collision_fn(p_WM, p_WT, q),
             self.maps.capability.is_reachable if capability else None, self.config.ranking,
-            grasp_is_free or self.collision_fn(p_WM, p_WT, q, grasp=True), self.lift_height,
+            grasp_is_free or self.collision_fn(p_WM, p_WT, q, grasp=True), self.lift_height, rng=self.ik.rng,
         )
 
     def _grasp_candidates(self, inputs: PolicyInputs, p_WM: np.ndarray, p_WT: np.ndarray):
@@ -450,7 +451,7 @@ class SubgoalPipeline:
 
         result = self.pregrasp.sample(p_WM, p_WT, q, is_free, self.rng, costmap=costmap,
                                       ee_poses=ee_poses, accept=accept,
-                                      tried_xy=np.array(self._tried_bases).reshape(-1, 2))
+                                      tried_xy=self._tried_xy(inputs))
         if not result.success:
             category = FailureCategory.REACHABILITY if result.funnel["ik"] == 0 else FailureCategory.SUBGOAL
             return SubgoalProposal.failure(result.failure_reason, category)
@@ -460,6 +461,17 @@ class SubgoalPipeline:
             if np.allclose(sample, result.q):
                 return SubgoalProposal(True, q_aimed, head=head)
         return SubgoalProposal(True, result.q, head=result.head)
+
+    def _tried_xy(self, inputs: PolicyInputs) -> np.ndarray:
+        """(K, 2) the bases the pre-grasp sampler tries last: those of pre-grasp
+        goals reached without a grasp, and those whose motion failed
+        (`PolicyInputs.failed_bases`: a base in a pocket the base planner
+        cannot enter, or behind furniture, would be drawn again nearest
+        first)."""
+        tried = np.array(self._tried_bases, dtype=float).reshape(-1, 2)
+        if inputs.failed_bases is not None and len(inputs.failed_bases):
+            tried = np.concatenate([tried, np.asarray(inputs.failed_bases, dtype=float).reshape(-1, 2)])
+        return tried
 
     def sample_observe(self, inputs: PolicyInputs) -> SubgoalProposal:
         """A base pose at a standoff that sees the target, arm stowed."""

@@ -139,7 +139,7 @@ class EpisodeOutcome:
 #: Policy phases (`PolicyReport.phase`) at and after grasp initiation: the
 #: linear approach from the pre-grasp pose, closing, lifting, backing off
 #: from a grasp that closed on nothing (to try another), done.
-GRASP_INITIATED_PHASES = ("grasp_approach", "grasp_close", "grasp_lift", "grasp_retreat", "succeeded")
+GRASP_INITIATED_PHASES = ("grasp_approach", "grasp_close", "grasp_pull", "grasp_lift", "grasp_retreat", "succeeded")
 #: Robot links allowed to touch anything are the fingers (`FINGER_LINKS`).
 GRIPPER_LINKS = ("gripper_link",) + FINGER_LINKS
 
