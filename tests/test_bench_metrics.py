@@ -136,3 +136,24 @@ def test_per_apartment_rates_come_from_the_suites_import_file(tmp_path):
     assert set(rows) == {"apt_1", "apt_2"}
     assert rows["apt_2"]["n"] == 3 and abs(rows["apt_2"]["success"] - 200 / 3) < 1e-9
     assert rows["apt_1"]["collision"] == 100.0
+
+
+def test_grasp_attempts_count_closed_retried_and_pulled_grasps_from_the_phases():
+    from vamg_drake.bench.report import grasp_attempts
+
+    def episode(status, *phases, method="full"):
+        return {"suite": "paper_static", "method": method, "status": status,
+                "phases": [[float(i), p, ""] for i, p in enumerate(phases)]}
+
+    records = [
+        episode("success", "grasp_close", "grasp_retreat", "grasp_close", "grasp_pull", "grasp_lift"),
+        episode("grasp", "grasp_close", "grasp_lift"),
+        episode("planning", "pre_grasp"),
+        {"suite": "paper_static", "method": "full", "status": "success"},  # no phases: not counted
+        episode("success", "grasp_close", "grasp_lift", method="nav_and_manip"),
+    ]
+    rows = {r["method"]: r for r in grasp_attempts(records)}
+    full = rows["full"]
+    assert (full["n"], full["closed"], full["retried"], full["pulled"], full["grasp_failures"]) == (3, 3, 1, 1, 1)
+    assert full["failed_per_closed"] == pytest.approx(200.0 / 3)
+    assert rows["nav_and_manip"]["failed_per_closed"] == 0.0

@@ -150,6 +150,25 @@ def per_apartment(records: list[dict], apartments: dict[tuple[str, int], str]) -
     return rows
 
 
+def grasp_attempts(records: list[dict]) -> list[dict]:
+    """Per (suite, method), from each episode's phase history: the grasps
+    closed (``closed``), those that closed on nothing and were retried
+    (``retried``), those pulled out before the lift (``pulled``), the
+    episodes that ended as grasp failures (``grasp_failures``), and the
+    failed grasps per closed grasp (``failed_per_closed``, %: retried plus
+    grasp failures over closed). Episodes without phases are not counted."""
+    rows = []
+    for (suite, method), rs in sorted(_groups([r for r in records if r.get("phases")], "suite", "method").items()):
+        phases = [[p[1] for p in r["phases"]] for r in rs]
+        closed = sum(ph.count("grasp_close") for ph in phases)
+        retried = sum(ph.count("grasp_retreat") for ph in phases)
+        failures = sum(r["status"] == "grasp" for r in rs)
+        rows.append({"suite": suite, "method": method, "n": len(rs), "closed": closed, "retried": retried,
+                     "pulled": sum(ph.count("grasp_pull") for ph in phases), "grasp_failures": failures,
+                     "failed_per_closed": 100.0 * (retried + failures) / closed if closed else float("nan")})
+    return rows
+
+
 def compute_cost(records: list[dict]) -> list[dict]:
     """Per (method, module): mean ms per call and calls per episode."""
     rows = []
@@ -395,6 +414,17 @@ def write_report(directory: str | Path) -> Path:
                   "|---|---|---|---:|---:|---:|"]
         lines += [f"| {r['suite']} | {r['method']} | {r['apartment']} | {r['n']} | {r['success']:.1f} | {r['collision']:.1f} |"
                   for r in apartments]
+        lines.append("")
+    attempts = grasp_attempts(records)
+    if attempts:
+        lines += ["## Grasp attempts", "",
+                  "From each episode's phases: grasps closed, those that closed on nothing and were retried, those "
+                  "pulled out from under an overhang before the lift, episodes ending as grasp failures, and failed "
+                  "grasps (retried + grasp failures) per closed grasp.", "",
+                  "| suite | method | n | closed | retried | pulled out | grasp failures | failed per closed % |",
+                  "|---|---|---:|---:|---:|---:|---:|---:|"]
+        lines += [f"| {r['suite']} | {r['method']} | {r['n']} | {r['closed']} | {r['retried']} | {r['pulled']} | "
+                  f"{r['grasp_failures']} | {_pct(r['failed_per_closed'])} |" for r in attempts]
         lines.append("")
     lines += ["## Per-scene spread", "", "| suite | method | scenes | min | max | std |", "|---|---|---:|---:|---:|---:|"]
     for r in rows:
