@@ -185,3 +185,58 @@ def test_a_replan_on_the_approach_goes_straight_in_from_where_the_robot_is():
     np.testing.assert_allclose(again.trajectory.q[-1], q_goal, atol=1e-6)
     gaps = [np.linalg.norm(kin.gripper_pose(q)[:3, 3] - p_goal) for q in again.trajectory.q]
     assert max(gaps) <= start_gap + 1e-6  # never backs away from the goal
+
+
+def _pregrasp(p_WT: np.ndarray, approach, q_seed: np.ndarray) -> np.ndarray:
+    """The arm configuration (base and torso of q_seed) with the grasp frame
+    5 cm before p_WT along the unit `approach`, closing axis horizontal."""
+    from vamg_drake.policy.ik import FastIk
+
+    x = np.asarray(approach, float) / np.linalg.norm(approach)
+    y = np.cross([0.0, 0.0, 1.0], x)
+    y /= np.linalg.norm(y)
+    X = np.eye(4)
+    X[:3, :3] = np.stack([x, y, np.cross(x, y)], axis=1)
+    X[:3, 3] = p_WT - 0.05 * x
+    q, ok = FastIk().solve_arm(X[None], q_seed)
+    assert ok[0]
+    return q[0]
+
+
+def test_a_grasp_move_from_around_the_target_leaves_along_its_approach_before_moving_on():
+    """From a pre-grasp with the open fingers around the target, a grasp-move
+    to another grasp's pre-grasp first backs the gripper straight out along
+    its approach, then moves on with the target's points as obstacles, and
+    comes in straight again: it never sweeps the fingers through the target."""
+    from vamg_drake.robot.kinematics import FetchKinematics
+
+    kin = FetchKinematics.instance()
+    q_seed = layout.stow_configuration(0.0, 0.0, 0.0)
+    q_seed[layout.TORSO] = 0.3
+    p_WT = np.array([0.85, 0.0, 0.9])
+    d = np.random.default_rng(0).normal(size=(300, 3))
+    obj = p_WT + 0.025 * d / np.linalg.norm(d, axis=1, keepdims=True)
+    q_start = _pregrasp(p_WT, [1.0, 0.0, 0.0], q_seed)  # from the front
+    q_goal = _pregrasp(p_WT, [1.0, -1.0, 0.0], q_seed)  # from the left, 45 degrees round
+    system = PlannerSystem(PlannerSystemConfig(planner=PlannerConfig(attempt_wall_limit_s=5.0)))
+    context = system.CreateDefaultContext()
+    goal = SubgoalCommand(1, q_goal, "plan", Phase.GRASP_MOVE, layout.GRIPPER_MAX_OPENING, np.full(2, np.nan))
+    system.GetInputPort("goal").FixValue(context, AbstractValue.Make(goal))
+    system.GetInputPort("point_map").FixValue(context, AbstractValue.Make(_snapshot(obj, 0)))
+    system.GetInputPort("robot_configuration").FixValue(context, q_start)
+    system.GetInputPort("target").FixValue(context, p_WT)
+    Simulator(system, context).AdvanceTo(0.05)
+    plan = system.GetOutputPort("trajectory").Eval(context)
+    assert plan.success and plan.exit_index > 0 and plan.approach_index > plan.exit_index, plan
+    q = plan.trajectory.q
+    np.testing.assert_allclose(q[0], q_start, atol=1e-9)
+    np.testing.assert_allclose(q[-1], q_goal, atol=1e-6)
+    X_start = kin.gripper_pose(q_start)
+    p_exit = kin.gripper_pose(q[plan.exit_index])[:3, 3]
+    back = X_start[:3, 3] - p_exit
+    assert np.linalg.norm(np.cross(back, X_start[:3, 0])) <= 0.005  # straight back along the approach ...
+    assert back @ X_start[:3, 0] in (pytest.approx(0.10, abs=0.005), pytest.approx(0.05, abs=0.005))  # ... 10 or 5 cm
+    assert plan.exit_index in plan.trajectory.stops and plan.approach_index in plan.trajectory.stops
+    # Between leaving and coming in again, the target's points are obstacles to the gripper.
+    assert system.planner.path_is_valid(q[plan.exit_index: plan.approach_index + 1])
+    assert not system.planner.path_is_valid(q[: plan.exit_index + 1])

@@ -141,6 +141,9 @@ class PlannedTrajectory:
             target's points: the straight approach that ends a pre-grasp or
             grasp-move motion (`PlannerSystemConfig.approach_retreat`), or 0
             for a grasp-move that starts around the target; -1: nowhere.
+        exit_index: up to this waypoint, too, the gripper may touch the
+            target's points: a grasp-move that starts around the target and
+            leaves it straight along the approach first; -1: nowhere.
     """
 
     goal_id: int = -1
@@ -154,4 +157,5 @@ class PlannedTrajectory:
     error: str = ""
     retreat: bool = False
     approach_index: int = -1
+    exit_index: int = -1
 

@@ -74,9 +74,11 @@ class PlannerSystemConfig:
         target_clearance: map points this close to the target are the object
             to grasp, which the gripper may touch (the rest of the robot may
             not) only where it is meant to: on the straight approach that ends
-            a pre-grasp or grasp-move motion (`approach_retreat`), and on a
+            a pre-grasp or grasp-move motion (`approach_retreat`), and, for a
             grasp-move motion that starts with the gripper already around the
-            target (from the reached pre-grasp). Everywhere else they are
+            target (from the reached pre-grasp), on the straight way out
+            along its approach (or, where the goal is the same pre-grasp
+            adjusted or there is no way out, on the whole motion). Everywhere else they are
             obstacles to the gripper too: with the exemption on every motion,
             the palm could sweep through the target between two pre-grasp
             poses, and the gripper could strike the table while unfolding the
@@ -359,14 +361,19 @@ class MotionSupervisor:
         return new, (MotionEvent.REPLANNED if new.success else self._failure_event(new))
 
     def _rest_is_valid(self, w: "_Work", plan: PlannedTrajectory, q: np.ndarray) -> bool:
-        """The rest of the plan from q: up to its approach (if any) without,
-        and from there with, the gripper's exemption from the target's points."""
+        """The rest of the plan from q: up to its exit (if any) with, then up
+        to its approach (if any) without, and from there with, the gripper's
+        exemption from the target's points."""
         check = w.inputs.path_check or functools.partial(self.check_path, p_WT=w.inputs.p_WT)
         k = nearest_waypoint(plan.trajectory, q)
         rest = remaining_path(plan.trajectory, q)
+        start = max(plan.exit_index - k, 0)
+        if start > 0 and not check(rest[:start + 1], True):
+            return False
+        rest = rest[start:]
         if plan.approach_index < 0:
             return check(rest, False)
-        split = max(plan.approach_index - k, 0)
+        split = max(plan.approach_index - k - start, 0)
         return ((split == 0 or check(rest[:split + 1], False))
                 and (split >= len(rest) - 1 or check(rest[split:], True)))
 
@@ -425,6 +432,54 @@ class MotionSupervisor:
                                  stops=(*path.stops, entry_index))
         return dc.replace(to_entry, trajectory=joined), entry_index, entry[1]
 
+    def _plan_via_exit(self, w: "_Work", q: np.ndarray, q_goal: np.ndarray) -> tuple | None:
+        """(plan result, approach index, exit index): from q, the gripper around the target,
+        the straight motion back `approach_retreat` (or half as far) along
+        the gripper's approach axis (valid with the gripper's exemption,
+        ending free of every point), then a plan to q_goal (`_plan_via_approach` where
+        q_goal touches the target). None when q_goal is the gripper's own
+        pre-grasp, adjusted (`_SAME_PREGRASP`: no need to leave), or without
+        such an exit or plan. Planned with the exemption, a motion between two
+        pre-grasp poses around a cup swept the fingers through it and
+        knocked it off its stand."""
+        exempt = self.exempt_checker(w.inputs.p_WT)
+        if exempt is None or self.config.approach_retreat <= 0.0 or self._ik is None:
+            return None
+        kinematics = FetchKinematics.instance()
+        X_WG = kinematics.gripper_pose(q)
+        X_WG_goal = kinematics.gripper_pose(q_goal)
+        turn = np.arccos(np.clip(0.5 * (np.trace(X_WG[:3, :3].T @ X_WG_goal[:3, :3]) - 1.0), -1.0, 1.0))
+        if np.linalg.norm(X_WG_goal[:3, 3] - X_WG[:3, 3]) <= self._SAME_PREGRASP[0] and turn <= self._SAME_PREGRASP[1]:
+            return None  # the same pre-grasp, adjusted: no need to leave
+        exit_line = None
+        for distance in (self.config.approach_retreat, 0.5 * self.config.approach_retreat):
+            X = X_WG.copy()
+            X[:3, 3] -= distance * X[:3, 0]
+            q_exit, ok = self._solve_arm(w, X[None], q)
+            if ok[0] and self.planner.checker.is_free(q_exit)[0]:
+                exit_line = self._straight_motion(q, q_exit[0], exempt)
+                if exit_line is not None:
+                    break
+        if exit_line is None:
+            return None
+        onward = self.planner.plan(q_exit[0], q_goal)
+        approach_index = -1
+        if not onward.success and onward.reason == FailureReason.GOAL_IN_COLLISION:
+            via = self._plan_via_approach(w, q_exit[0], q_goal)
+            if via is not None:
+                onward, approach_index, _ = via
+        if not onward.success:
+            return None
+        path = onward.trajectory
+        t_exit = exit_line.times[-1]
+        joined = TimedTrajectory(np.concatenate([exit_line.times, t_exit + path.times[1:]]),
+                                 np.concatenate([exit_line.q, path.q[1:]]),
+                                 stops=(exit_line.q.shape[0] - 1,
+                                        *(exit_line.q.shape[0] - 1 + i for i in path.stops if i > 0)))
+        exit_index = exit_line.q.shape[0] - 1
+        index = exit_index + approach_index if approach_index >= 0 else -1
+        return dc.replace(onward, trajectory=joined), index, exit_index
+
     def _on_approach(self, w: "_Work", q: np.ndarray, q_goal: np.ndarray) -> TimedTrajectory | None:
         """The straight motion q -> q_goal when the robot is on its approach:
         base and torso at the goal's, the gripper within `approach_retreat`
@@ -449,6 +504,10 @@ class MotionSupervisor:
         speed, if valid with the gripper's exemption; else None."""
         line = linear_trajectory(q_from, q_to, 0.0, self.config.linear_speed_fraction)
         return line if self.planner.path_is_valid(line.q, checker=exempt) else None
+
+    #: Gripper offset [m] and turn [rad] within which a grasp-move goal is
+    #: the pre-grasp the gripper is at (adjusted), not another one.
+    _SAME_PREGRASP = (0.02, 0.2)
 
     #: Base (m, rad) and torso (m) offsets from the goal's, and gripper slack
     #: beyond `approach_retreat` [m], within which the robot is on its approach.
@@ -553,7 +612,7 @@ class MotionSupervisor:
 
     def _plan_goal(self, w: "_Work", goal: SubgoalCommand, q: np.ndarray, t: float, revision: int,
                    t0: float) -> PlannedTrajectory:
-        approach_index = -1
+        approach_index = exit_index = -1
         try:
             if w.inputs.before_planning is not None:
                 w.inputs.before_planning()  # a bad map raises here: a recorded error
@@ -562,9 +621,18 @@ class MotionSupervisor:
             if (exempt is not None and goal.phase == Phase.GRASP_MOVE
                     and not self.planner.unpadded_checker().is_free(q[None])[0]):
                 # From the reached pre-grasp, the gripper already around the
-                # target: the whole (short) motion may touch its points.
-                result = self._plan_with(exempt.env, q, q_goal)
-                approach_index = 0
+                # target: out the way it came in, then to the goal without
+                # touching the target; only where there is no such way (or
+                # the goal is on the straight line ahead) may the whole
+                # (short) motion touch the target's points.
+                via = self._plan_via_exit(w, q, q_goal)
+                if via is not None:
+                    result, approach_index, exit_index = via
+                    _log.info("motion t=%.2f: goal %d: out along the approach, then to the new pre-grasp",
+                              t, goal.goal_id)
+                else:
+                    result = self._plan_with(exempt.env, q, q_goal)
+                    approach_index = 0
             else:
                 result = self.planner.plan(q, q_goal)
             if (not result.success and result.reason == FailureReason.GOAL_IN_COLLISION
@@ -603,4 +671,5 @@ class MotionSupervisor:
             return PlannedTrajectory(goal.goal_id, None, False, FLOOR_REASON, revision, result.timings["total"],
                                      motion="plan")
         return PlannedTrajectory(goal.goal_id, result.trajectory.shifted(t), True, "", revision,
-                                 result.timings["total"], motion="plan", approach_index=approach_index)
+                                 result.timings["total"], motion="plan", approach_index=approach_index,
+                                 exit_index=exit_index)
