@@ -462,10 +462,13 @@ class MotionSupervisor:
                     break
         if exit_line is None:
             return None
-        onward = self.planner.plan(q_exit[0], q_goal)
+        # From the line's own end: it is q_exit with the continuous joints
+        # unwrapped from q (IK wraps them into [-pi, pi)).
+        q_out = exit_line.q[-1]
+        onward = self.planner.plan(q_out, q_goal)
         approach_index = -1
         if not onward.success and onward.reason == FailureReason.GOAL_IN_COLLISION:
-            via = self._plan_via_approach(w, q_exit[0], q_goal)
+            via = self._plan_via_approach(w, q_out, q_goal)
             if via is not None:
                 onward, approach_index, _ = via
         if not onward.success:
