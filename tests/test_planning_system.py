@@ -124,19 +124,26 @@ def _pregrasp_scene():
     return q_goal, p_WT, obj
 
 
-def _plan_to_pregrasp(q: np.ndarray, retreat: float):
-    """(system, plan): a planner system's plan from q to `_pregrasp_scene`'s goal."""
-    q_goal, p_WT, obj = _pregrasp_scene()
+def _plan_around_target(q: np.ndarray, q_goal: np.ndarray, phase: Phase, p_WT: np.ndarray, obj: np.ndarray,
+                        retreat: float = 0.10):
+    """(system, plan): a planner system's plan from q to the goal q_goal of
+    `phase`, the map the object's points `obj`, the target at p_WT."""
     system = PlannerSystem(PlannerSystemConfig(approach_retreat=retreat,
                                                planner=PlannerConfig(attempt_wall_limit_s=5.0)))
     context = system.CreateDefaultContext()
-    goal = SubgoalCommand(1, q_goal, "plan", Phase.PREGRASP, layout.GRIPPER_MAX_OPENING, np.full(2, np.nan))
+    goal = SubgoalCommand(1, q_goal, "plan", phase, layout.GRIPPER_MAX_OPENING, np.full(2, np.nan))
     system.GetInputPort("goal").FixValue(context, AbstractValue.Make(goal))
     system.GetInputPort("point_map").FixValue(context, AbstractValue.Make(_snapshot(obj, 0)))
     system.GetInputPort("robot_configuration").FixValue(context, q)
     system.GetInputPort("target").FixValue(context, p_WT)
     Simulator(system, context).AdvanceTo(0.05)
     return system, system.GetOutputPort("trajectory").Eval(context)
+
+
+def _plan_to_pregrasp(q: np.ndarray, retreat: float):
+    """(system, plan): a planner system's plan from q to `_pregrasp_scene`'s goal."""
+    q_goal, p_WT, obj = _pregrasp_scene()
+    return _plan_around_target(q, q_goal, Phase.PREGRASP, p_WT, obj, retreat)
 
 
 def test_pregrasp_goal_straddling_the_target_is_approached_straight_from_behind():
@@ -221,15 +228,7 @@ def test_a_grasp_move_from_around_the_target_leaves_along_its_approach_before_mo
     q_goal = _pregrasp(p_WT, [1.0, -1.0, 0.0], q_seed)  # from the left, 45 degrees round
     # The measured heading may have turned through 2 pi (IK wraps it; the path must not jump).
     q_start[layout.THETA] += 2.0 * np.pi * turns
-    system = PlannerSystem(PlannerSystemConfig(planner=PlannerConfig(attempt_wall_limit_s=5.0)))
-    context = system.CreateDefaultContext()
-    goal = SubgoalCommand(1, q_goal, "plan", Phase.GRASP_MOVE, layout.GRIPPER_MAX_OPENING, np.full(2, np.nan))
-    system.GetInputPort("goal").FixValue(context, AbstractValue.Make(goal))
-    system.GetInputPort("point_map").FixValue(context, AbstractValue.Make(_snapshot(obj, 0)))
-    system.GetInputPort("robot_configuration").FixValue(context, q_start)
-    system.GetInputPort("target").FixValue(context, p_WT)
-    Simulator(system, context).AdvanceTo(0.05)
-    plan = system.GetOutputPort("trajectory").Eval(context)
+    system, plan = _plan_around_target(q_start, q_goal, Phase.GRASP_MOVE, p_WT, obj)
     assert plan.success and plan.exit_index > 0 and plan.approach_index > plan.exit_index, plan
     q = plan.trajectory.q
     np.testing.assert_allclose(q[0], q_start, atol=1e-9)
