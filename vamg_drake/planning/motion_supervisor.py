@@ -21,6 +21,7 @@ import traceback
 from typing import Protocol
 
 import numpy as np
+from pydrake.math import RotationMatrix
 
 from vamg_drake.planning.collision_environment import CollisionEnvironment
 from vamg_drake.planning.sphere_collision import SphereCollisionChecker
@@ -448,7 +449,7 @@ class MotionSupervisor:
         kinematics = FetchKinematics.instance()
         X_WG = kinematics.gripper_pose(q)
         X_WG_goal = kinematics.gripper_pose(q_goal)
-        turn = np.arccos(np.clip(0.5 * (np.trace(X_WG[:3, :3].T @ X_WG_goal[:3, :3]) - 1.0), -1.0, 1.0))
+        turn = RotationMatrix(X_WG[:3, :3].T @ X_WG_goal[:3, :3]).ToAngleAxis().angle()
         if np.linalg.norm(X_WG_goal[:3, 3] - X_WG[:3, 3]) <= self._SAME_PREGRASP[0] and turn <= self._SAME_PREGRASP[1]:
             return None  # the same pre-grasp, adjusted: no need to leave
         exit_line = None
