@@ -204,6 +204,16 @@ class BehaviourConfig:
                 raise ValueError(f"BehaviourConfig.{f.name} must be >= 0, got {getattr(self, f.name)}")
 
 
+def _with_failures(inputs: PolicyInputs, state: "BehaviourState") -> PolicyInputs:
+    """`inputs` with the episode's failed grasps and failed pre-grasp bases
+    (`PolicyInputs.failed_grasps`, `failed_bases`) from `state`."""
+    if state.failed_grasps:
+        inputs = dc.replace(inputs, failed_grasps=np.stack(state.failed_grasps))
+    if state.failed_bases:
+        inputs = dc.replace(inputs, failed_bases=np.stack(state.failed_bases))
+    return inputs
+
+
 def _stage_counts() -> dict:
     return {s: 0 for s in Stage}
 
@@ -406,11 +416,7 @@ class SubgoalBehaviour:
              event: MotionEvent = MotionEvent.NONE) -> tuple[BehaviourState, SubgoalCommand]:
         """(the next state, the command): advances the policy with new inputs and optional motion feedback."""
         s = state.copy()
-        if s.failed_grasps:
-            inputs = dc.replace(inputs, failed_grasps=np.stack(s.failed_grasps))
-        if s.failed_bases:
-            inputs = dc.replace(inputs, failed_bases=np.stack(s.failed_bases))
-        s.inputs = inputs
+        inputs = s.inputs = _with_failures(inputs, s)
         for memory, saved in zip(self._memory, s.samplers):
             memory.load_state(saved)
         self._s = s
@@ -548,7 +554,7 @@ class SubgoalBehaviour:
             state.grasp_blocked_at = np.asarray(inputs.q, float)[layout.BASE_XY].copy()
         if stage == Stage.PREGRASP and state.q_goal is not None:
             state.failed_bases = (*state.failed_bases, np.asarray(state.q_goal, float)[layout.BASE_XY].copy())
-            state.inputs = dc.replace(state.inputs, failed_bases=np.stack(state.failed_bases))  # for this tick
+            state.inputs = _with_failures(state.inputs, state)  # for this tick
         self._transition(inputs, Phase.IDLE, f"motion to the {stage.value} goal failed: resampling")
         return True
 
