@@ -452,17 +452,10 @@ class MotionSupervisor:
         turn = RotationMatrix(X_WG[:3, :3].T @ X_WG_goal[:3, :3]).ToAngleAxis().angle()
         if np.linalg.norm(X_WG_goal[:3, 3] - X_WG[:3, 3]) <= self._SAME_PREGRASP[0] and turn <= self._SAME_PREGRASP[1]:
             return None  # the same pre-grasp, adjusted: no need to leave
-        exit_line = None
-        for distance in (self.config.approach_retreat, 0.5 * self.config.approach_retreat):
-            X = X_WG.copy()
-            X[:3, 3] -= distance * X[:3, 0]
-            q_exit, ok = self._solve_arm(w, X[None], q)
-            if ok[0] and self.planner.checker.is_free(q_exit)[0]:
-                exit_line = self._straight_motion(q, q_exit[0], exempt)
-                if exit_line is not None:
-                    break
-        if exit_line is None:
+        back = self._drawn_back(w, q, exempt, end_free=True)
+        if back is None:
             return None
+        exit_line = linear_trajectory(q, back[0], 0.0, self.config.linear_speed_fraction)
         # From the line's own end: it is q_exit with the continuous joints
         # unwrapped from q (IK wraps them into [-pi, pi)).
         q_out = exit_line.q[-1]
@@ -525,15 +518,24 @@ class MotionSupervisor:
         exempt = self.exempt_checker(w.inputs.p_WT)
         if exempt is None or self.config.approach_retreat <= 0.0 or self._ik is None:
             return None
-        X_WG = FetchKinematics.instance().gripper_pose(q_goal)
+        return self._drawn_back(w, q_goal, exempt)
+
+    def _drawn_back(self, w: "_Work", q: np.ndarray, exempt: SphereCollisionChecker,
+                    end_free: bool = False) -> tuple[np.ndarray, float] | None:
+        """(configuration, distance): the gripper of q drawn back
+        `approach_retreat` (or half of it) along its approach axis (IK, base
+        and torso fixed), the straight motion between it and q valid with the
+        gripper's exemption and, with `end_free`, the drawn-back configuration
+        free of every point; else None."""
+        X_WG = FetchKinematics.instance().gripper_pose(q)
         for distance in (self.config.approach_retreat, 0.5 * self.config.approach_retreat):
             X = X_WG.copy()
             X[:3, 3] -= distance * X[:3, 0]
-            q_entry, ok = self._solve_arm(w, X[None], q_goal)
-            if not ok[0]:
+            q_back, ok = self._solve_arm(w, X[None], q)
+            if not ok[0] or (end_free and not self.planner.checker.is_free(q_back)[0]):
                 continue
-            if self._straight_motion(q_entry[0], q_goal, exempt) is not None:
-                return q_entry[0], distance
+            if self._straight_motion(q_back[0], q, exempt) is not None:
+                return q_back[0], distance
         return None
 
     def _solve_arm(self, w: "_Work", X_WG: np.ndarray, q_seed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -627,7 +629,7 @@ class MotionSupervisor:
                 # From the reached pre-grasp, the gripper already around the
                 # target: out the way it came in, then to the goal without
                 # touching the target; only where there is no such way (or
-                # the goal is on the straight line ahead) may the whole
+                # the goal is the same pre-grasp, adjusted) may the whole
                 # (short) motion touch the target's points.
                 via = self._plan_via_exit(w, q, q_goal)
                 if via is not None:
