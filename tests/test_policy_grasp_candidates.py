@@ -65,6 +65,33 @@ def test_small_ball_on_a_table_is_grasped_nearer_the_fingertips() -> None:
         AntipodalGraspConfig(contact_offsets=[])
 
 
+def test_ball_seen_only_from_above_is_grasped_without_checking_normals() -> None:
+    """A 6 cm ball seen only above 30 deg of latitude (a far, high view): the
+    points at its extremes along any closing axis are the cap's rim, whose
+    normals tilt 30 deg or more out of the pads' friction cone, so no
+    candidate passes the first-contact test. The fallback keeps the top-down
+    grasps whose first contacts lie inside the fingertips and across the pads
+    (the pads' middle at the unseen equator), at half their score."""
+    radius = 0.03
+    center = np.array([0.0, 0.0, 0.874 + radius])
+    ball = clouds.sphere_cloud(center, radius, seed=4)
+    cap = ball[ball[:, 2] > center[2] + radius * np.sin(np.radians(30.0))]
+    cloud = np.concatenate([cap, clouds.table_top_cloud(z=0.874, size=0.5, spacing=0.005)])
+    strict = AntipodalGraspSampler(AntipodalGraspConfig(unchecked_normals_fallback=False)).propose(cloud, center)
+    assert len(strict) == 0 and "no finger clearance" in strict.failure_reason
+    g = AntipodalGraspSampler().propose(cloud, center)
+    assert len(g) > 0, g.failure_reason
+    _assert_valid_frames(g)
+    assert np.all(g.X_WG[:, 2, 0] < -0.99)  # straight down
+    assert np.all(np.abs(g.X_WG[:, 2, 3] - center[2]) < 0.01)  # pads' middle at the equator
+    assert np.all(g.score <= 0.5 + 1e-9)
+    # The fallback only serves where nothing passes: a ball seen whole keeps its full scores.
+    whole = AntipodalGraspSampler().propose(np.concatenate([ball, cloud]), center)
+    assert len(whole) > 0 and whole.score.max() > 0.5
+    with pytest.raises(ValueError, match="unchecked_normals_score_scale"):
+        AntipodalGraspConfig(unchecked_normals_score_scale=0.0)
+
+
 def test_low_brick_gets_top_down_grasps_along_its_axes() -> None:
     """A 6.4 x 3.2 x 2 cm brick on a table, turned 0.5 rad (a Lego
     brick): the top-down family closes across its short and its long side,
@@ -611,14 +638,18 @@ def test_a_brick_seen_from_one_side_gets_top_down_grasps() -> None:
     far pad meets. Those top-face points (normals along the approach) are left
     out of the first-contact test (``facing_approach_cos`` 0.866, as the grasp
     trials run), so the top-down grasps across the brick are kept; testing
-    them (the default: as if the top's edge were the face touched) leaves none."""
+    them (the default: as if the top's edge were the face touched) leaves none,
+    and the default's fallback without the normals keeps them at half score."""
     cloud, center = _single_view_brick(0.72, (0.04, 0.03, 0.035), 0.3)
     g = AntipodalGraspSampler(AntipodalGraspConfig(facing_approach_cos=0.866)).propose(cloud, center)
     assert len(g) > 0, g.failure_reason
     _assert_valid_frames(g)
     assert np.count_nonzero(g.X_WG[:, 2, 0] < -0.999) >= 2
-    every_point = AntipodalGraspSampler().propose(cloud, center)
+    every_point = AntipodalGraspSampler(AntipodalGraspConfig(unchecked_normals_fallback=False)).propose(cloud, center)
     assert np.count_nonzero(every_point.X_WG[:, 2, 0] < -0.999) == 0 if len(every_point) else True
+    fallback = AntipodalGraspSampler().propose(cloud, center)
+    assert np.count_nonzero(fallback.X_WG[:, 2, 0] < -0.999) >= 2
+    assert fallback.score.max() <= 0.5 * g.score.max() + 1e-9
 
 
 def test_a_long_object_is_grasped_top_down_along_its_length() -> None:

@@ -182,6 +182,16 @@ class AntipodalGraspConfig:
     #: side, which closed on nothing. The grasp trials use 0.866 (30 deg), so
     #: the learned scorer sees such candidates fail.
     facing_approach_cos: float = 2.0
+    #: Where no candidate passes the first-contact test, keep those that pass
+    #: it without its friction-cone part (the pads' first contacts still lie
+    #: inside the fingertips and across the pads' middle, but the observed
+    #: normals there are not checked), their scores scaled by
+    #: ``unchecked_normals_score_scale``. The PCA normals of the few points at a small, lumpy or curved
+    #: object's extremes are the least reliable part of the test (a banana's
+    #: flank, a clamp's rim); a grasp tried can fail and be retried, no grasp
+    #: ends the step.
+    unchecked_normals_fallback: bool = True
+    unchecked_normals_score_scale: float = 0.5
     #: Most candidates returned (highest scores first).
     max_candidates: int = 400
     #: Top-down grasps proposed from the target's cluster itself, at this many
@@ -228,6 +238,9 @@ class AntipodalGraspConfig:
         if not self.facing_approach_cos > 0.0:
             raise ValueError(f"AntipodalGraspConfig.facing_approach_cos must be > 0 (above 1: no point is left "
                              f"out), got {self.facing_approach_cos}")
+        if not 0.0 < self.unchecked_normals_score_scale <= 1.0:
+            raise ValueError(f"AntipodalGraspConfig.unchecked_normals_score_scale must be in (0, 1], "
+                             f"got {self.unchecked_normals_score_scale}")
         if not 0.0 <= self.min_pad_span <= 1.0:
             raise ValueError(f"AntipodalGraspConfig.min_pad_span must be in [0, 1], got {self.min_pad_span}")
         if not self.contact_offsets or any(not 0.0 <= o < self.gripper.finger_length / 2 for o in self.contact_offsets):
@@ -334,12 +347,16 @@ class AntipodalGraspSampler:
             return GraspCandidates.empty("no antipodal contact pair within the gripper opening near the target")
         x_axis, y_axis, center, width, quality = (np.concatenate(a) for a in zip(*families))
         X_WG, ok, offset = self._clear_frames(crop, normals, x_axis, y_axis, center, width, z_support)
+        scale = 1.0
+        if not np.any(ok) and cfg.unchecked_normals_fallback:
+            X_WG, ok, offset = self._clear_frames(crop, None, x_axis, y_axis, center, width, z_support)
+            scale = cfg.unchecked_normals_score_scale
         if not np.any(ok):
             return GraspCandidates.empty("every antipodal grasp collides with the observed cloud (no finger clearance)")
         X_WG, width, quality, center, offset = X_WG[ok], width[ok], quality[ok], center[ok], offset[ok]
         proximity = 1.0 - np.clip(np.linalg.norm(center - p_WT, axis=1) / cfg.grasp_radius, 0.0, 1.0)
         # Contacts nearer the fingertips hold less: 1 cm of offset costs 0.01.
-        score = 0.7 * quality + 0.3 * proximity - offset
+        score = scale * (0.7 * quality + 0.3 * proximity - offset)
         order = np.argsort(-score, kind="stable")[: cfg.max_candidates]
         return GraspCandidates(X_WG[order], score[order], width[order])
 
@@ -500,12 +517,14 @@ class AntipodalGraspSampler:
         self._spacing = spacing
         return estimate_normals_open3d(crop, cfg.normal_neighbours)
 
-    def _clear_frames(self, points: np.ndarray, normals: np.ndarray, x_axis: np.ndarray, y_axis: np.ndarray,
+    def _clear_frames(self, points: np.ndarray, normals: np.ndarray | None, x_axis: np.ndarray, y_axis: np.ndarray,
                       center: np.ndarray, width: np.ndarray,
                       z_support: float = -np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Grasp frames X_WG (K, 4, 4) with the contacts at the first of
         ``contact_offsets`` where the gripper clears the cloud and the support
-        surface at `z_support`, whether one does (K,), and that offset (K,)."""
+        surface at `z_support` (`_clearance_ok`; without `normals`, the first
+        contacts' friction cone is not checked), whether one does (K,), and
+        that offset (K,)."""
         X_WG = np.empty((x_axis.shape[0], 4, 4))
         ok = np.zeros(x_axis.shape[0], dtype=bool)
         offset = np.zeros(x_axis.shape[0])
