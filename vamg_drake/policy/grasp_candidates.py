@@ -186,10 +186,10 @@ class AntipodalGraspConfig:
     #: it without its friction-cone part (the pads' first contacts still lie
     #: inside the fingertips and across the pads' middle, but the observed
     #: normals there are not checked), their scores scaled by
-    #: ``unchecked_normals_score_scale``. The PCA normals of the few points at a small, lumpy or curved
-    #: object's extremes are the least reliable part of the test (a banana's
-    #: flank, a clamp's rim); a grasp tried can fail and be retried, no grasp
-    #: ends the step.
+    #: ``unchecked_normals_score_scale``. The PCA normals of the few points at
+    #: a small, lumpy or curved object's extremes are the least reliable part
+    #: of the test (a banana's flank, a clamp's rim); a grasp tried can fail
+    #: and be retried, no grasp ends the step.
     unchecked_normals_fallback: bool = True
     unchecked_normals_score_scale: float = 0.5
     #: Most candidates returned (highest scores first).
