@@ -44,6 +44,40 @@ def test_weights_follow_the_papers_formula():
     np.testing.assert_allclose(agnostic.weights.reshape(n, s)[:, 0], expected / speed)
 
 
+def test_points_inside_the_robot_now_weigh_nothing():
+    g = GazeOptimizer(K)
+    n = 10
+    body = np.zeros((n, 2, 3))
+    body[:, 1, 0] = np.linspace(0.0, 2.0, n)  # sphere 1 moves away along x; sphere 0 stays
+    speed = np.ones(n)
+    radii = np.array([0.5, 0.1])
+    plain = g.trajectory_importance(body, speed).weights.reshape(n, 2)
+    skipped = g.trajectory_importance(body, speed, radii).weights.reshape(n, 2)
+    inside = body[:, 1, 0] <= 0.5  # within sphere 0 of waypoint 0
+    assert np.all(skipped[:, 0] == 0.0)  # the sphere that does not move
+    np.testing.assert_array_equal(skipped[inside, 1], 0.0)
+    np.testing.assert_allclose(skipped[~inside, 1], plain[~inside, 1])
+    off = GazeOptimizer(K, GazeConfig(skip_occupied=False)).trajectory_importance(body, speed, radii)
+    np.testing.assert_allclose(off.weights.reshape(n, 2), plain)
+    with pytest.raises(ValueError, match="radii"):
+        g.trajectory_importance(body, speed, np.ones(3))
+
+
+def test_an_arm_swing_during_a_turn_in_place_draws_the_gaze_to_the_arm():
+    # The base turns in place while the torso rises and the arm swings out on the left:
+    # the base sweeps its own footprint, so the new space is where the arm goes.
+    q1 = layout.stow_configuration(0.0, 0.0, -0.6)
+    q1[layout.TORSO] = 0.3
+    q1[layout.TORSO_ARM][1:] = [1.3, -0.5, 0.0, 1.0, 0.0, 0.5, 0.0]
+    sweep = TrajectorySweep(np.array([0.0, 2.0]), np.array([Q0, q1]))
+    target = np.array([1.0, -1.0, 0.7])
+    with_skip = decide_fetch_gaze(GazeOptimizer(K), Q0, target, sweep, 0.0)
+    without = decide_fetch_gaze(GazeOptimizer(K, GazeConfig(skip_occupied=False)), Q0, target, sweep, 0.0)
+    assert without.tilt > 1.3  # down at the base's own footprint
+    assert with_skip.sees_importance
+    assert with_skip.pan > 0.3 and with_skip.tilt < 1.0  # out to the left, where the arm swings
+
+
 def test_frustum_scores_match_the_numpy_reference():
     g = GazeOptimizer(K)
     X_WC = FetchKinematics.instance().camera_poses_for_gazes(Q0, g.candidates)

@@ -15,6 +15,10 @@ chosen gaze maximizes sum_x Phi(x) * V(x, a) over weighted importance points:
       w_d(x, q_i) = exp(-1/2 ((d(x, q_i) - d_mid) / sigma)^2),  sigma = max(1, 0.25 N),
 
   and points swept by several waypoints accumulate (the paper's sum over i).
+  A swept point that lies inside the robot's body now (`skip_occupied`) weighs
+  nothing: no obstacle can stand where the robot stands, so looking there
+  teaches the map nothing. A base turning in place sweeps almost only its own
+  footprint; the weight then goes to the space the arm swings into.
   Distance choice: d(x, q_i) is the look-ahead distance from the robot now to
   the waypoint that sweeps x, counted in waypoints (= i). The paper's sigma =
   max(1, 0.25 N) is in waypoints, so this is the reading in which its units are
@@ -37,6 +41,7 @@ import logging
 import numba
 import numpy as np
 
+from vamg_drake.perception.raycast_map import inside_any_sphere
 from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics
 from vamg_drake.robot.kinematics import FetchKinematics
@@ -79,6 +84,9 @@ class GazeConfig:
     #: gaze's points and lies closer to the current head command wins (the head moves at
     #: its rate limit: swinging across for a few more points costs more than it sees).
     look_score_fraction: float = 0.8
+    #: Swept points inside the robot's spheres at the window's first waypoint (where the
+    #: robot is now) get no weight: that space holds the robot, not an unseen obstacle.
+    skip_occupied: bool = True
 
     def __post_init__(self) -> None:
         self.validate()
@@ -186,8 +194,13 @@ class GazeOptimizer:
             speed = np.zeros(t.shape[0])
         return qs, speed
 
-    def trajectory_importance(self, body_points_W: np.ndarray, speeds: np.ndarray) -> ImportanceField:
-        """w_safety weights for body points (N, S, 3) at the N look-ahead waypoints with speeds (N,)."""
+    def trajectory_importance(self, body_points_W: np.ndarray, speeds: np.ndarray,
+                              radii: np.ndarray | None = None) -> ImportanceField:
+        """w_safety weights for body points (N, S, 3) at the N look-ahead waypoints with speeds (N,).
+
+        With the body's sphere `radii` (S,) and `GazeConfig.skip_occupied`, the points
+        inside the spheres of waypoint 0 (the robot now) weigh nothing.
+        """
         pts = np.asarray(body_points_W, dtype=float)
         speeds = np.asarray(speeds, dtype=float).reshape(-1)
         if pts.ndim != 3 or pts.shape[2] != 3 or pts.shape[0] != speeds.shape[0]:
@@ -204,7 +217,14 @@ class GazeOptimizer:
         if c.variant == "velocity_aware":
             w = w * speeds
         weights = np.repeat(w, pts.shape[1])
-        return ImportanceField(points=pts.reshape(-1, 3), weights=weights)
+        flat = pts.reshape(-1, 3)
+        if c.skip_occupied and radii is not None and n > 0:
+            radii = np.asarray(radii, dtype=float).reshape(-1)
+            if radii.shape[0] != pts.shape[1]:
+                raise ValueError(f"trajectory_importance: radii must be ({pts.shape[1]},), got {radii.shape}")
+            occupied = inside_any_sphere(np.ascontiguousarray(flat), np.ascontiguousarray(pts[0]), radii)
+            weights = np.where(occupied, 0.0, weights)
+        return ImportanceField(points=flat, weights=weights)
 
     # ---- selection -----------------------------------------------------------------
     def scores(self, field: ImportanceField, X_WC: np.ndarray) -> np.ndarray:
@@ -377,7 +397,7 @@ def decide_fetch_gaze(
     if sweep is not None and optimizer.config.variant != "target_only":
         stride = max(1, int(round(optimizer.config.waypoint_dt / sweep.dt)))
         body, speed = sweep.window(t_now, optimizer.config.lookahead_waypoints, stride)
-        field = optimizer.trajectory_importance(body, speed)
+        field = optimizer.trajectory_importance(body, speed, sweep.radii)
         if field.total > 0.0 or p_WTarget is None:
             return optimizer.choose(field, X_WC)
         # The window is at rest (e.g. the trajectory has ended): fall back to the target.
