@@ -45,7 +45,7 @@ def test_weights_follow_the_papers_formula():
 
 
 def test_points_inside_the_robot_now_weigh_nothing():
-    g = GazeOptimizer(K)
+    g = GazeOptimizer(K, GazeConfig(skip_occupied=True))
     n = 10
     body = np.zeros((n, 2, 3))
     body[:, 1, 0] = np.linspace(0.0, 2.0, n)  # sphere 1 moves away along x; sphere 0 stays
@@ -71,8 +71,8 @@ def test_an_arm_swing_during_a_turn_in_place_draws_the_gaze_to_the_arm():
     q1[layout.TORSO_ARM][1:] = [1.3, -0.5, 0.0, 1.0, 0.0, 0.5, 0.0]
     sweep = TrajectorySweep(np.array([0.0, 2.0]), np.array([Q0, q1]))
     target = np.array([1.0, -1.0, 0.7])
-    with_skip = decide_fetch_gaze(GazeOptimizer(K), Q0, target, sweep, 0.0)
-    without = decide_fetch_gaze(GazeOptimizer(K, GazeConfig(skip_occupied=False)), Q0, target, sweep, 0.0)
+    with_skip = decide_fetch_gaze(GazeOptimizer(K, GazeConfig(skip_occupied=True)), Q0, target, sweep, 0.0)
+    without = decide_fetch_gaze(GazeOptimizer(K), Q0, target, sweep, 0.0)
     assert without.tilt > 1.3  # down at the base's own footprint
     assert with_skip.sees_importance
     assert with_skip.pan > 0.3 and with_skip.tilt < 1.0  # out to the left, where the arm swings

@@ -15,10 +15,11 @@ chosen gaze maximizes sum_x Phi(x) * V(x, a) over weighted importance points:
       w_d(x, q_i) = exp(-1/2 ((d(x, q_i) - d_mid) / sigma)^2),  sigma = max(1, 0.25 N),
 
   and points swept by several waypoints accumulate (the paper's sum over i).
-  A swept point that lies inside the robot's body now (`skip_occupied`) weighs
-  nothing: no obstacle can stand where the robot stands, so looking there
-  teaches the map nothing. A base turning in place sweeps almost only its own
-  footprint; the weight then goes to the space the arm swings into.
+  With `skip_occupied` (off by default), a swept point that lies inside the
+  robot's body now weighs nothing: no obstacle can stand where the robot
+  stands, so looking there teaches the map nothing. A base turning in place
+  sweeps almost only its own footprint; the weight then goes to the space the
+  arm swings into.
   Distance choice: d(x, q_i) is the look-ahead distance from the robot now to
   the waypoint that sweeps x, counted in waypoints (= i). The paper's sigma =
   max(1, 0.25 N) is in waypoints, so this is the reading in which its units are
@@ -86,7 +87,8 @@ class GazeConfig:
     look_score_fraction: float = 0.8
     #: Swept points inside the robot's spheres at the window's first waypoint (where the
     #: robot is now) get no weight: that space holds the robot, not an unseen obstacle.
-    skip_occupied: bool = True
+    #: Off by default until its closed-loop A/B on the paper tasks is complete.
+    skip_occupied: bool = False
 
     def __post_init__(self) -> None:
         self.validate()
