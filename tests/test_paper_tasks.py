@@ -17,6 +17,7 @@ import pytest
 from vamg_drake.cli import main as cli_main
 from vamg_drake.systems.dynamic_obstacles import approach_triggered, first_clear_candidate
 from vamg_drake.world.paper_tasks import (
+    SETTLED_POSE_DECIMALS,
     PaperTaskConfig,
     TaskFileError,
     import_scene,
@@ -189,6 +190,18 @@ def test_every_object_is_placed_or_reported(dynamic_scene):
         assert scenario.replicacad.scene == EXPECTED_APARTMENTS[scene.index]
     for index, reason in imported.excluded:
         assert not imported.objects[index].placed and imported.objects[index].reason in reason
+
+
+def test_settled_poses_are_on_a_micrometre_grid(dynamic_scene):
+    # The settling simulation's last bits vary between CPUs; the scenario files
+    # (and so a suite rebuilt on another machine) must not.
+    _, imported = dynamic_scene
+    for _, scenario in imported.scenarios:
+        for obj in scenario.objects:
+            for v in [*obj.xyz, *obj.rpy]:
+                assert v == round(v, SETTLED_POSE_DECIMALS), (obj.name, v)
+    for report in imported.objects:
+        assert report.lifted == round(report.lifted, SETTLED_POSE_DECIMALS)
 
 
 def test_dynamic_events_follow_the_protocol(dynamic_scene):

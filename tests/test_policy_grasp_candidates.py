@@ -92,6 +92,45 @@ def test_ball_seen_only_from_above_is_grasped_without_checking_normals() -> None
         AntipodalGraspConfig(unchecked_normals_score_scale=0.0)
 
 
+def test_a_bag_of_marbles_is_grasped_with_the_rough_surface_band() -> None:
+    """The YCB bag of marbles on a table, seen once by the head camera: its
+    sensed surface is a heap of 2 cm bumps, so the points within
+    ``contact_band`` of its extremes along any closing axis are one bump's
+    cap, never across the pads' middle, and the first-contact test rejects
+    every grasp. The rough-surface fallback takes the first contacts within
+    ``rough_contact_band`` instead, at a lower score."""
+    from pydrake.geometry import Box, Mesh
+    from pydrake.math import RigidTransform, RollPitchYaw
+
+    from vamg_drake.bench.grasp_trials import observe
+    from vamg_drake.perception.depth_points import DepthBackProjector, DepthToPointsConfig
+    from vamg_drake.perception.shape_depth_render import ShapeDepthRenderer, look_at
+    from vamg_drake.robot.head_camera import CameraIntrinsics, HeadCameraConfig
+    from vamg_drake.world.ycb import load_ycb_asset
+
+    asset = load_ycb_asset("marbles_a")
+    X_WO = RigidTransform(RollPitchYaw(0.0, 0.0, 0.0), [0.0, 0.0, TABLE_Z - asset.bounds_O[0, 2]])
+    intrinsics = CameraIntrinsics.from_config(HeadCameraConfig())
+    renderer = ShapeDepthRenderer(intrinsics, [(Mesh(str(asset.visual_path)), X_WO),
+                                               (Box(0.6, 0.5, 0.05), RigidTransform([0.0, 0.0, TABLE_Z - 0.025]))])
+    p_WT = X_WO.translation()
+    p_WC = p_WT + np.array([0.9 * np.cos(0.3), 0.9 * np.sin(0.3), 0.0])
+    p_WC[2] = 1.3
+    cloud = observe(renderer, DepthBackProjector(intrinsics, DepthToPointsConfig()), [look_at(p_WC, p_WT)], 0.001,
+                    np.random.default_rng(0))
+    cloud = cloud[np.linalg.norm(cloud - p_WT, axis=1) <= 0.3]
+    without = AntipodalGraspSampler().propose(cloud, p_WT)
+    assert len(without) == 0 and "no finger clearance" in without.failure_reason
+    rough = AntipodalGraspConfig(rough_contact_band=0.01)
+    g = AntipodalGraspSampler(rough).propose(cloud, p_WT)
+    assert len(g) > 0, g.failure_reason
+    _assert_valid_frames(g)
+    assert np.all(g.score <= rough.rough_surface_score_scale + 1e-9)
+    assert np.all(g.width <= GRIPPER_MAX_OPENING)
+    with pytest.raises(ValueError, match="rough_surface_score_scale"):
+        AntipodalGraspConfig(rough_surface_score_scale=0.0)
+
+
 def test_low_brick_gets_top_down_grasps_along_its_axes() -> None:
     """A 6.4 x 3.2 x 2 cm brick on a table, turned 0.5 rad (a Lego
     brick): the top-down family closes across its short and its long side,

@@ -192,6 +192,17 @@ class AntipodalGraspConfig:
     #: and be retried, no grasp ends the step.
     unchecked_normals_fallback: bool = True
     unchecked_normals_score_scale: float = 0.5
+    #: Where no candidate passes even without the friction cone, keep those
+    #: that pass it with the first contacts taken within ``rough_contact_band``
+    #: of the extremes (normals unchecked), their scores scaled by
+    #: ``rough_surface_score_scale``. On a lumpy surface, a bag of marbles,
+    #: the extreme along the closing axis is the top of one bump: the points
+    #: within ``contact_band`` of it are one small curved patch, never across
+    #: the pads' middle, although flat pads closing on it rest on several
+    #: bumps at once. 0 (the default): off, until its closed-loop A/B on the
+    #: paper tasks; 0.01 gives the marbles candidates in most single views.
+    rough_contact_band: float = 0.0
+    rough_surface_score_scale: float = 0.25
     #: Most candidates returned (highest scores first).
     max_candidates: int = 400
     #: Top-down grasps proposed from the target's cluster itself, at this many
@@ -241,6 +252,9 @@ class AntipodalGraspConfig:
         if not 0.0 < self.unchecked_normals_score_scale <= 1.0:
             raise ValueError(f"AntipodalGraspConfig.unchecked_normals_score_scale must be in (0, 1], "
                              f"got {self.unchecked_normals_score_scale}")
+        if not 0.0 < self.rough_surface_score_scale <= 1.0 or self.rough_contact_band < 0.0:
+            raise ValueError(f"AntipodalGraspConfig: need rough_contact_band >= 0 and rough_surface_score_scale in "
+                             f"(0, 1], got {self.rough_contact_band}, {self.rough_surface_score_scale}")
         if not 0.0 <= self.min_pad_span <= 1.0:
             raise ValueError(f"AntipodalGraspConfig.min_pad_span must be in [0, 1], got {self.min_pad_span}")
         if not self.contact_offsets or any(not 0.0 <= o < self.gripper.finger_length / 2 for o in self.contact_offsets):
@@ -351,6 +365,10 @@ class AntipodalGraspSampler:
         if not np.any(ok) and cfg.unchecked_normals_fallback:
             X_WG, ok, offset = self._clear_frames(crop, None, x_axis, y_axis, center, width, z_support)
             scale = cfg.unchecked_normals_score_scale
+        if not np.any(ok) and cfg.rough_contact_band > cfg.contact_band:
+            X_WG, ok, offset = self._clear_frames(crop, None, x_axis, y_axis, center, width, z_support,
+                                                  cfg.rough_contact_band)
+            scale = cfg.rough_surface_score_scale
         if not np.any(ok):
             return GraspCandidates.empty("every antipodal grasp collides with the observed cloud (no finger clearance)")
         X_WG, width, quality, center, offset = X_WG[ok], width[ok], quality[ok], center[ok], offset[ok]
@@ -518,20 +536,20 @@ class AntipodalGraspSampler:
         return estimate_normals_open3d(crop, cfg.normal_neighbours)
 
     def _clear_frames(self, points: np.ndarray, normals: np.ndarray | None, x_axis: np.ndarray, y_axis: np.ndarray,
-                      center: np.ndarray, width: np.ndarray,
-                      z_support: float = -np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                      center: np.ndarray, width: np.ndarray, z_support: float = -np.inf,
+                      contact_band: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Grasp frames X_WG (K, 4, 4) with the contacts at the first of
         ``contact_offsets`` where the gripper clears the cloud and the support
         surface at `z_support` (`_clearance_ok`; without `normals`, the first
-        contacts' friction cone is not checked), whether one does (K,), and
-        that offset (K,)."""
+        contacts' friction cone is not checked; `contact_band` overrides the
+        config's), whether one does (K,), and that offset (K,)."""
         X_WG = np.empty((x_axis.shape[0], 4, 4))
         ok = np.zeros(x_axis.shape[0], dtype=bool)
         offset = np.zeros(x_axis.shape[0])
         todo = np.arange(x_axis.shape[0])
         for contact_x in self.config.contact_offsets:
             X = _frames_from_axes(x_axis[todo], y_axis[todo], center[todo] - contact_x * x_axis[todo])
-            clear = self._clearance_ok(points, X, width[todo], normals, z_support)
+            clear = self._clearance_ok(points, X, width[todo], normals, z_support, contact_band)
             X_WG[todo] = X
             ok[todo[clear]] = True
             offset[todo] = contact_x
@@ -553,13 +571,15 @@ class AntipodalGraspSampler:
                                       float(self._line_tolerance), float(cfg.min_width), float(max_width), cos_cone)
 
     def _clearance_ok(self, points: np.ndarray, X_WG: np.ndarray, width: np.ndarray,
-                      normals: np.ndarray | None = None, z_support: float = -np.inf) -> np.ndarray:
+                      normals: np.ndarray | None = None, z_support: float = -np.inf,
+                      contact_band: float | None = None) -> np.ndarray:
         """True where the fingers' closing sweep and the palm's approach sweep are
         point-free and the pads' first contacts hold (`_clearance_kernel`), and
         the open fingers and the palm stay above the support surface at
         `z_support` (the table top continues under the object and in its
         occlusion shadow, where the cloud has no point to collide with); without
-        `normals` the first contacts' friction-cone test is skipped."""
+        `normals` the first contacts' friction-cone test is skipped;
+        `contact_band` overrides the config's."""
         cfg = self.config
         g = cfg.gripper
         if normals is None:
@@ -588,7 +608,7 @@ class AntipodalGraspSampler:
             g.palm_height,
             cfg.min_support,
             max(cfg.min_pad_span * 0.5 * g.finger_width - 0.5 * self._spacing, 0.0),
-            max(cfg.contact_band, self._spacing),
+            max(cfg.contact_band if contact_band is None else contact_band, self._spacing),
             cfg.min_tip_distance,
             facing_cos,
         )

@@ -22,11 +22,12 @@ What the importer does, per scene:
    (``ycb.ycb_model_for_id``). The file poses the YCB scan frame S (the
    release's mesh frame), so an object's centroid O is placed at
    ``p_WS + R_WS p_SO``; objects still in contact deeper than 1 mm are lifted
-   out of it, then all are settled together in Drake for ``settle_time``
-   with the episode's contact model (compliant hydroelastic objects, 10 ms
+   out of it, then all are settled together in Drake, among the apartment's
+   furniture and walls, for ``settle_time`` with the episode's contact model (compliant hydroelastic objects, 10 ms
    SAP steps; settled with point contact instead, light objects started
-   the episode in contact deep enough to launch them). An object that moves more than ``max_displacement`` from
-   its file position, or ends off every receptacle, is reported
+   the episode in contact deep enough to launch them). The settled poses are
+   rounded to ``SETTLED_POSE_DECIMALS``. An object that moves more than
+   ``max_displacement`` from its file position, or ends off every receptacle, is reported
    (``ObjectReport``) and left out; a task whose target is left out is
    excluded with that reason. Nothing is moved silently: every object's
    displacement is in the report.
@@ -47,8 +48,9 @@ from pathlib import Path
 
 import numpy as np
 from pydrake.common.eigen_geometry import Quaternion
+from pydrake.geometry import Box as DrakeBox
 from pydrake.geometry import HalfSpace
-from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
@@ -417,6 +419,11 @@ def settle_objects(layout: ReplicaCadLayout, objects: list[PlacedObject], settle
     plant, _ = AddMultibodyPlant(MultibodyPlantConfig(time_step=WorldConfig().time_step, discrete_contact_approximation="sap"), builder)
     register_replicacad(plant, plant.AddModelInstance("scene"), layout, _proximity(geometry, False, 0.05), visuals=False)
     plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(), HalfSpace(), "floor", _proximity(geometry, False, 0.05))
+    # The episode's walls too: an object that the file puts into one is pushed
+    # out (and reported by its displacement), not left inside it.
+    for wall in layout.walls:
+        plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(RotationMatrix(wall.R_WB), wall.p_WB),
+                                        DrakeBox(*(2.0 * wall.half_extents)), wall.name, _proximity(geometry, False, 0.05))
     bodies = [add_ycb_body(plant, obj.name, geometry, obj.model)[1] for obj in objects]
     plant.Finalize()
     diagram = builder.Build()
@@ -457,9 +464,22 @@ def settle_objects(layout: ReplicaCadLayout, objects: list[PlacedObject], settle
     settled = []
     for obj, body in zip(objects, bodies):
         X = plant.EvalBodyPoseInWorld(context, body)
-        settled.append(PlacedObject(obj.name, [float(v) for v in X.translation()], [float(v) for v in RollPitchYaw(X.rotation()).vector()],
+        settled.append(PlacedObject(obj.name, _rounded(X.translation()), _rounded(RollPitchYaw(X.rotation()).vector()),
                                     obj.support, obj.support_height, obj.model))
-    return settled, [float(v) for v in lifts]
+    return settled, _rounded(lifts)
+
+
+#: Decimals kept of the settled poses [m, rad] and lifts [m]. The settling
+#: simulation's last bits depend on the CPU (its vector instructions), so
+#: unrounded poses would make a suite built on another machine differ from
+#: this one's by ~1e-16 m, and an episode that starts from them diverge from
+#: the recorded one after a few seconds. A micrometre is far below anything
+#: physical here, and far above those differences.
+SETTLED_POSE_DECIMALS = 6
+
+
+def _rounded(values) -> list[float]:
+    return [round(float(v), SETTLED_POSE_DECIMALS) for v in values]
 
 
 def _manipulation_boxes(target: PlacedObject, support: Receptacle, others: list[PlacedObject], rng: np.random.Generator,
@@ -597,6 +617,7 @@ __all__ = [
     "PaperTask",
     "PaperTaskConfig",
     "PedestrianBox",
+    "SETTLED_POSE_DECIMALS",
     "SceneImport",
     "TaskFileError",
     "import_scene",

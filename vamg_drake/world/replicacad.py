@@ -39,7 +39,8 @@ What is loaded, and how:
 * **Stage** (the apartment shell): its render mesh is visual-only when the
   file is present. Collision walls always come from the navmesh: each
   boundary edge of the floor polygons that no furniture explains becomes a
-  thin wall box, ``agent_radius`` outside the edge. With
+  thin wall box, ``agent_radius`` outside the edge, reaching on by
+  ``agent_radius`` at the ends that meet another wall edge (a corner). With
   ``require_stage=True`` a missing stage raises ``ReplicaCadError``.
 
 Missing files raise ``ReplicaCadError`` naming the file, except a missing
@@ -60,6 +61,7 @@ import re
 import struct
 import tempfile
 import xml.etree.ElementTree as ET
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -646,39 +648,7 @@ class _Loader:
         return [b.footprint() for b in obstacles if b.z_range()[0] < self.config.robot_height]
 
     def _walls(self, navmesh: NavMesh, obstacles: list[WorldBox]) -> list[WorldBox]:
-        config = self.config
-        footprints = self._blocking_footprints(obstacles)
-        centres = np.array([f.mean(axis=0) for f in footprints]).reshape(-1, 2)
-        radii = np.array([np.max(np.linalg.norm(f - f.mean(axis=0), axis=1)) for f in footprints])
-        r = navmesh.agent_radius
-        walls = []
-        for k, (a3, b3) in enumerate(navmesh.boundary_edges):
-            a, b = a3[:2], b3[:2]
-            length = float(np.linalg.norm(b - a))
-            if length < 1e-6:
-                continue
-            u = (b - a) / length
-            n = np.array([u[1], -u[0]])
-            mid = 0.5 * (a + b)
-            if navmesh.contains_xy((mid + 0.05 * n)[None])[0] and not navmesh.contains_xy((mid - 0.05 * n)[None])[0]:
-                n = -n
-            probe = mid + (r + 0.05) * n
-            near = np.flatnonzero(np.linalg.norm(centres - probe, axis=1) <= radii + config.wall_clearance)
-            if any(signed_distance_to_polygon(probe[None], footprints[i])[0] <= config.wall_clearance for i in near):
-                continue
-            if navmesh.contains_xy(probe[None])[0]:
-                continue
-            t = config.wall_thickness
-            centre = mid + (r + 0.5 * t) * n
-            walls.append(
-                WorldBox(
-                    f"wall/rc_{k}",
-                    np.array([centre[0], centre[1], 0.5 * config.wall_height]),
-                    rotation_z(math.atan2(u[1], u[0])),
-                    np.array([0.5 * length + r, 0.5 * t, 0.5 * config.wall_height]),
-                )
-            )
-        return walls
+        return navmesh_walls(navmesh, self._blocking_footprints(obstacles), self.config)
 
     def _receptacles(self) -> list[Receptacle]:
         config = self.config
@@ -730,6 +700,60 @@ def _covered_fraction(polygon: np.ndarray, covers: list[np.ndarray], spacing: fl
     for hull in covers:
         covered |= signed_distance_to_polygon(grid, hull) <= 0
     return float(np.count_nonzero(covered)) / len(grid)
+
+
+def navmesh_walls(navmesh: NavMesh, footprints: list[np.ndarray], config: ReplicaCadConfig) -> list[WorldBox]:
+    """The walls of a scene without its stage mesh, rebuilt from its navmesh.
+
+    One thin box per navmesh boundary edge that no blocking `footprints`
+    (furniture, (k, 2) polygons) explain, ``agent_radius`` outside the edge.
+    An end that meets another wall edge reaches ``agent_radius`` further, so
+    that the boxes close the room's corners; an end where the boundary turns
+    around furniture stops at the edge's end (reaching on would push the wall
+    into the furniture, and into an object resting on it there)."""
+    centres = np.array([f.mean(axis=0) for f in footprints]).reshape(-1, 2)
+    radii = np.array([np.max(np.linalg.norm(f - f.mean(axis=0), axis=1)) for f in footprints])
+    r = navmesh.agent_radius
+    edges = []
+    for k, (a3, b3) in enumerate(navmesh.boundary_edges):
+        a, b = a3[:2], b3[:2]
+        length = float(np.linalg.norm(b - a))
+        if length < 1e-6:
+            continue
+        u = (b - a) / length
+        n = np.array([u[1], -u[0]])
+        mid = 0.5 * (a + b)
+        if navmesh.contains_xy((mid + 0.05 * n)[None])[0] and not navmesh.contains_xy((mid - 0.05 * n)[None])[0]:
+            n = -n
+        probe = mid + (r + 0.05) * n
+        near = np.flatnonzero(np.linalg.norm(centres - probe, axis=1) <= radii + config.wall_clearance)
+        if any(signed_distance_to_polygon(probe[None], footprints[i])[0] <= config.wall_clearance for i in near):
+            continue
+        if navmesh.contains_xy(probe[None])[0]:
+            continue
+        edges.append((k, a, b, u, n, length))
+    ends = Counter(_vertex_key(p) for _, a, b, *_ in edges for p in (a, b))
+    walls = []
+    t = config.wall_thickness
+    for k, a, b, u, n, length in edges:
+        reach_a = r if ends[_vertex_key(a)] > 1 else 0.0
+        reach_b = r if ends[_vertex_key(b)] > 1 else 0.0
+        centre = 0.5 * (a + b) + 0.5 * (reach_b - reach_a) * u + (r + 0.5 * t) * n
+        walls.append(
+            WorldBox(
+                f"wall/rc_{k}",
+                np.array([centre[0], centre[1], 0.5 * config.wall_height]),
+                rotation_z(math.atan2(u[1], u[0])),
+                np.array([0.5 * (length + reach_a + reach_b), 0.5 * t, 0.5 * config.wall_height]),
+            )
+        )
+    return walls
+
+
+def _vertex_key(p_xy: np.ndarray) -> tuple[int, int]:
+    """A navmesh vertex's identity in the plane (0.1 mm cells): edges that
+    share it share the vertex."""
+    return (int(round(float(p_xy[0]) * 1e4)), int(round(float(p_xy[1]) * 1e4)))
 
 
 def _vertical_box(name: str, points_W: np.ndarray) -> WorldBox:
