@@ -23,12 +23,13 @@ What the importer does, per scene:
    release's mesh frame), so an object's centroid O is placed at
    ``p_WS + R_WS p_SO``; objects still in contact deeper than 1 mm are lifted
    out of it, then all are settled together in Drake, among the apartment's
-   furniture and walls, for ``settle_time`` with the episode's contact model (compliant hydroelastic objects, 10 ms
-   SAP steps; settled with point contact instead, light objects started
-   the episode in contact deep enough to launch them). The settled poses are
-   rounded to ``SETTLED_POSE_DECIMALS``. An object that moves more than
-   ``max_displacement`` from its file position, or ends off every receptacle, is reported
-   (``ObjectReport``) and left out; a task whose target is left out is
+   furniture and walls, for ``settle_time`` with the episode's contact model
+   (compliant hydroelastic objects, 10 ms SAP steps; settled with point
+   contact instead, light objects started the episode in contact deep enough
+   to launch them). The settled poses are rounded to
+   ``SETTLED_POSE_DECIMALS``. An object that moves more than
+   ``max_displacement`` from its file position, or ends off every
+   receptacle, is reported (``ObjectReport``) and left out; a task whose target is left out is
    excluded with that reason. Nothing is moved silently: every object's
    displacement is in the report.
 3. **Tasks.** One scenario per task: the apartment, the settled objects, the
@@ -470,7 +471,7 @@ def settle_objects(layout: ReplicaCadLayout, objects: list[PlacedObject], settle
 
 
 #: Decimals kept of the settled poses [m, rad] and lifts [m]. The settling
-#: simulation's last bits depend on the CPU (its vector instructions), so
+#: simulation's last bits depend on the machine, so
 #: unrounded poses would make a suite built on another machine differ from
 #: this one's by ~1e-16 m, and an episode that starts from them diverge from
 #: the recorded one after a few seconds. A micrometre is far below anything
