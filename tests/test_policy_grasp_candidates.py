@@ -6,8 +6,15 @@ import dataclasses as dc
 
 import numpy as np
 import pytest
+from pydrake.geometry import Box, Mesh
+from pydrake.math import RigidTransform, RollPitchYaw
 
+from vamg_drake.bench.grasp_trials import observe
+from vamg_drake.perception.depth_points import DepthBackProjector, DepthToPointsConfig
+from vamg_drake.perception.shape_depth_render import ShapeDepthRenderer, look_at
+from vamg_drake.robot.head_camera import CameraIntrinsics, HeadCameraConfig
 from vamg_drake.testing import synthetic_clouds as clouds
+from vamg_drake.world.ycb import load_ycb_asset
 from vamg_drake.policy.grasp_candidates import (
     AntipodalGraspConfig,
     AntipodalGraspSampler,
@@ -99,15 +106,6 @@ def test_a_bag_of_marbles_is_grasped_with_the_rough_surface_band() -> None:
     cap, never across the pads' middle, and the first-contact test rejects
     every grasp. The rough-surface fallback takes the first contacts within
     ``rough_contact_band`` instead, at a lower score."""
-    from pydrake.geometry import Box, Mesh
-    from pydrake.math import RigidTransform, RollPitchYaw
-
-    from vamg_drake.bench.grasp_trials import observe
-    from vamg_drake.perception.depth_points import DepthBackProjector, DepthToPointsConfig
-    from vamg_drake.perception.shape_depth_render import ShapeDepthRenderer, look_at
-    from vamg_drake.robot.head_camera import CameraIntrinsics, HeadCameraConfig
-    from vamg_drake.world.ycb import load_ycb_asset
-
     asset = load_ycb_asset("marbles_a")
     X_WO = RigidTransform(RollPitchYaw(0.0, 0.0, 0.0), [0.0, 0.0, TABLE_Z - asset.bounds_O[0, 2]])
     intrinsics = CameraIntrinsics.from_config(HeadCameraConfig())

@@ -360,15 +360,16 @@ class AntipodalGraspSampler:
         if not families:
             return GraspCandidates.empty("no antipodal contact pair within the gripper opening near the target")
         x_axis, y_axis, center, width, quality = (np.concatenate(a) for a in zip(*families))
-        X_WG, ok, offset = self._clear_frames(crop, normals, x_axis, y_axis, center, width, z_support)
-        scale = 1.0
-        if not np.any(ok) and cfg.unchecked_normals_fallback:
-            X_WG, ok, offset = self._clear_frames(crop, None, x_axis, y_axis, center, width, z_support)
-            scale = cfg.unchecked_normals_score_scale
-        if not np.any(ok) and cfg.rough_contact_band > cfg.contact_band:
-            X_WG, ok, offset = self._clear_frames(crop, None, x_axis, y_axis, center, width, z_support,
-                                                  cfg.rough_contact_band)
-            scale = cfg.rough_surface_score_scale
+        # The first-contact test's levels, strictest first: (normals, contact band, score scale).
+        levels = [(normals, None, 1.0)]
+        if cfg.unchecked_normals_fallback:
+            levels.append((None, None, cfg.unchecked_normals_score_scale))
+        if cfg.rough_contact_band > cfg.contact_band:
+            levels.append((None, cfg.rough_contact_band, cfg.rough_surface_score_scale))
+        for level_normals, band, scale in levels:
+            X_WG, ok, offset = self._clear_frames(crop, level_normals, x_axis, y_axis, center, width, z_support, band)
+            if np.any(ok):
+                break
         if not np.any(ok):
             return GraspCandidates.empty("every antipodal grasp collides with the observed cloud (no finger clearance)")
         X_WG, width, quality, center, offset = X_WG[ok], width[ok], quality[ok], center[ok], offset[ok]

@@ -49,9 +49,8 @@ from pathlib import Path
 
 import numpy as np
 from pydrake.common.eigen_geometry import Quaternion
-from pydrake.geometry import Box as DrakeBox
 from pydrake.geometry import HalfSpace
-from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
@@ -75,7 +74,7 @@ from vamg_drake.world.scenario import (
     Scenario,
     validate_scenario,
 )
-from vamg_drake.world.scene_geometry import SceneGeometryConfig, _proximity, add_ycb_body
+from vamg_drake.world.scene_geometry import WALL_RGBA, SceneGeometryConfig, _proximity, add_ycb_body, register_primitive
 from vamg_drake.world.world_builder import WorldConfig
 from vamg_drake.world.ycb import load_ycb_asset, ycb_model_for_id
 
@@ -423,8 +422,7 @@ def settle_objects(layout: ReplicaCadLayout, objects: list[PlacedObject], settle
     # The episode's walls too: an object that the file puts into one is pushed
     # out (and reported by its displacement), not left inside it.
     for wall in layout.walls:
-        plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(RotationMatrix(wall.R_WB), wall.p_WB),
-                                        DrakeBox(*(2.0 * wall.half_extents)), wall.name, _proximity(geometry, False, 0.05))
+        register_primitive(plant, plant.world_body(), wall, RigidTransform(), WALL_RGBA, geometry, anchored_owner={})
     bodies = [add_ycb_body(plant, obj.name, geometry, obj.model)[1] for obj in objects]
     plant.Finalize()
     diagram = builder.Build()

@@ -475,7 +475,7 @@ class _Loader:
             self._articulated(i, instance, scene_path)
         navmesh = self._navmesh(doc, scene_path)
         obstacles = self._obstacles()
-        walls = self._walls(navmesh, obstacles)
+        walls = navmesh_walls(navmesh, self._blocking_footprints(obstacles), self.config)
         receptacles = self._receptacles()
         usable = tuple(r for r in receptacles if r.blocked_fraction <= self.config.max_blocked_fraction)
         covered = tuple(r for r in receptacles if r.blocked_fraction > self.config.max_blocked_fraction)
@@ -646,9 +646,6 @@ class _Loader:
 
     def _blocking_footprints(self, obstacles: list[WorldBox]) -> list[np.ndarray]:
         return [b.footprint() for b in obstacles if b.z_range()[0] < self.config.robot_height]
-
-    def _walls(self, navmesh: NavMesh, obstacles: list[WorldBox]) -> list[WorldBox]:
-        return navmesh_walls(navmesh, self._blocking_footprints(obstacles), self.config)
 
     def _receptacles(self) -> list[Receptacle]:
         config = self.config

@@ -66,6 +66,7 @@ __all__ = [
     "ObstacleHandle",
     "SceneGeometryConfig",
     "SceneHandles",
+    "WALL_RGBA",
     "add_scene",
     "add_ycb_body",
     "register_primitive",
@@ -84,7 +85,8 @@ _OBJECT_PALETTE = (
     (0.85, 0.45, 0.65),
 )
 _FLOOR_RGBA = (0.75, 0.72, 0.68, 1.0)
-_WALL_RGBA = (0.92, 0.92, 0.88, 1.0)
+#: Colour of walls (rooms, and the navmesh walls of ReplicaCAD scenes).
+WALL_RGBA = (0.92, 0.92, 0.88, 1.0)
 
 
 @dataclass
@@ -336,7 +338,7 @@ def add_scene(
     register_primitive(plant, floor_body, floor, I_W, _FLOOR_RGBA, config, owner)
     walls_body = welded_body("walls", I_W)
     for wall in scenario.room.wall_primitives():
-        register_primitive(plant, walls_body, wall, I_W, _WALL_RGBA, config, owner)
+        register_primitive(plant, walls_body, wall, I_W, WALL_RGBA, config, owner)
     for furniture in scenario.furniture:
         p_WF, R_WF = furniture.X_WF()
         X_WF = RigidTransform(RotationMatrix(R_WF), p_WF)
@@ -346,7 +348,7 @@ def add_scene(
     layout = scenario.replicacad_layout()
     if layout is not None:
         for wall in layout.walls:
-            register_primitive(plant, walls_body, wall, I_W, _WALL_RGBA, config, owner)
+            register_primitive(plant, walls_body, wall, I_W, WALL_RGBA, config, owner)
         register_replicacad(plant, scene, layout, _proximity(config, False, 0.05), anchored_owner=owner)
 
     object_bodies: dict[str, RigidBody] = {}
