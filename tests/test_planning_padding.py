@@ -1,7 +1,6 @@
 """Starts and goals inside the collision padding (closed loop: tracking error,
 map points appearing near the robot) are planned from; penetrating ones fail."""
 
-import dataclasses
 import math
 
 import numpy as np
@@ -212,25 +211,3 @@ def test_the_arm_tests_occupied_cells_and_the_gripper_and_base_test_points():
     env = CollisionEnvironment.from_points(facing, h)
     assert points.with_environment(env).unpadded().is_free(q[None])[0]
     assert cells.with_environment(env).unpadded().is_free(q[None])[0]
-
-
-def test_environment_padding_sets_the_inflation_against_the_map_only(planner):
-    """A wall 1 cm in front of the robot is inside the planner's padding
-    (1.5 cm), outside a 5 mm one; the 5 mm copy keeps the base's extra
-    padding (3 cm: the base, in front at the stow pose, still touches the
-    wall) and the self-collision radii."""
-    wall = _wall_at(_front_of_robot(planner, Q_START) + 0.01)
-    planner.set_environment(CollisionEnvironment.from_primitives([wall]))
-    tight = planner.checker.with_environment_padding(0.005)
-    np.testing.assert_allclose(tight.sph_r, planner.checker.base_radius + 0.005 + 0.03 * planner.checker.is_base)
-    np.testing.assert_array_equal(tight.sph_rs, planner.checker.sph_rs)
-    assert not tight.is_free(Q_START[None])[0]
-    no_base_padding = WholeBodyPlanner.for_fetch(CollisionEnvironment.from_primitives([wall]),
-                                                 dataclasses.replace(CONFIG, base_extra_padding=0.0))
-    checker = no_base_padding.checker
-    tight = checker.with_environment_padding(0.005)
-    assert not checker.is_free(Q_START[None])[0]
-    assert tight.is_free(Q_START[None])[0] and checker.unpadded().is_free(Q_START[None])[0]
-    assert not checker.with_environment_padding(0.02).is_free(Q_START[None])[0]
-    with pytest.raises(ValueError, match="padding"):
-        checker.with_environment_padding(-0.001)

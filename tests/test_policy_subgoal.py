@@ -10,11 +10,10 @@ import pytest
 from behaviour_stepper import Stepper
 from vamg_drake.testing import synthetic_clouds as clouds
 from vamg_drake.perception.depth_points import DepthToPointsConfig
-from vamg_drake.planning.sphere_collision import CollisionCheckerConfig
 from vamg_drake.policy.behaviour_tree import FailureCategory, MotionEvent, Phase, PolicyInputs, SubgoalBehaviour
 from vamg_drake.policy.kinematic_maps import KinematicMaps
 from vamg_drake.policy.pregrasp_sampler import BaseCostmap, CostmapConfig, PregraspConfig, PregraspSampler
-from vamg_drake.policy.subgoal_pipeline import TIGHT_NOTE, SubgoalPipeline, SubgoalPipelineConfig
+from vamg_drake.policy.subgoal_pipeline import SubgoalPipeline
 from vamg_drake.robot import layout
 from vamg_drake.robot.head_camera import CameraIntrinsics, HeadCameraConfig
 from vamg_drake.robot.kinematics import FetchKinematics
@@ -393,38 +392,3 @@ def test_a_grasp_that_closed_on_nothing_is_not_proposed_again(fresh_pipeline) ->
     every = PolicyInputs(1.0, pre.q_goal, points, target, dense, failed_grasps=candidates.X_WG)
     exhausted = pipeline.sample_grasp(every)
     assert not exhausted.success and "closed on nothing" in exhausted.failure_reason
-
-
-def test_tight_goal_padding_is_tried_only_where_the_planner_padding_rules_out_every_goal() -> None:
-    # The brick on the counter under a 5 cm padding (a motion resolution of
-    # 10 cm): every IK-valid pre-grasp touches the counter's padding. The
-    # tighter second check finds a pre-grasp and a grasp from it, both free
-    # for the tight spheres, the pre-grasp not for the padded ones.
-    points, dense, target = _brick_on_counter()
-    q0 = layout.stow_configuration(-0.5, 0.0, 0.0)
-    padded = CollisionCheckerConfig(motion_resolution=0.1)
-
-    def pipeline(tight: float | None) -> SubgoalPipeline:
-        return SubgoalPipeline(KinematicMaps.load_or_build(), HeadCameraConfig(), DepthToPointsConfig().depth_max,
-                               config=SubgoalPipelineConfig(tight_goal_padding=tight), seed=0, collision=padded)
-
-    plain = pipeline(None)
-    failed = plain.sample_pregrasp(PolicyInputs(0.0, q0, points, target, dense))
-    assert not failed.success and "collision-free 0" in failed.failure_reason
-    with pytest.raises(ValueError, match="tight_goal_padding"):
-        plain.collision_fn(points, target, q0, tight=True)
-
-    tight = pipeline(0.005)
-    pre = tight.sample_pregrasp(PolicyInputs(0.0, q0, points, target, dense))
-    assert pre.success, pre.failure_reason
-    grasp = tight.sample_grasp(PolicyInputs(1.0, pre.q_goal, points, target, dense))
-    assert grasp.success, grasp.failure_reason
-    assert pre.note == TIGHT_NOTE and pre.found("pre-grasp goal found") == f"pre-grasp goal found ({TIGHT_NOTE})"
-    assert tight.collision_fn(points, target, q0, tight=True)(pre.q_goal[None])[0]
-    assert not tight.collision_fn(points, target, q0)(pre.q_goal[None])[0]
-    assert tight.collision_fn(points, target, pre.q_goal, grasp=True, tight=True)(grasp.q_grasp[None])[0]
-
-
-def test_tight_goal_padding_must_be_non_negative() -> None:
-    with pytest.raises(ValueError, match="tight_goal_padding"):
-        SubgoalPipelineConfig(tight_goal_padding=-0.01).validate()

@@ -224,29 +224,11 @@ class SphereCollisionChecker:
                         float(env.grasp_target_radius),
                         self.env_test)
 
-    def _copy(self) -> "SphereCollisionChecker":
-        other = object.__new__(SphereCollisionChecker)
-        other.__dict__.update(self.__dict__)
-        return other
-
     def with_environment(self, env: CollisionEnvironment) -> "SphereCollisionChecker":
         """A copy of this checker over another environment."""
-        other = self._copy()
+        other = object.__new__(SphereCollisionChecker)
+        other.__dict__.update(self.__dict__)
         other.set_environment(env)
-        return other
-
-    def with_environment_padding(self, padding: float) -> "SphereCollisionChecker":
-        """A copy over the same environment whose spheres are inflated by
-        ``padding`` [m] against it instead of half the motion resolution +
-        `extra_padding` (the base's spheres by `base_extra_padding` more); the
-        self-collision tests are unchanged. A configuration free for it with
-        ``padding`` >= `extra_padding` is free for `unpadded` too."""
-        if not padding >= 0.0:
-            raise ValueError(f"padding must be >= 0, got {padding}")
-        other = self._copy()
-        other.padding = float(padding)
-        other.sph_r = self.base_radius + other.padding + self.config.base_extra_padding * self.is_base
-        other.set_environment(self.env)
         return other
 
     def unpadded(self) -> "SphereCollisionChecker":
@@ -256,7 +238,8 @@ class SphereCollisionChecker:
         other: the test of whether a configuration actually penetrates
         something. Motions checked with it need a fine spacing of their own
         (see `densify`)."""
-        other = self._copy()
+        other = object.__new__(SphereCollisionChecker)
+        other.__dict__.update(self.__dict__)
         other.padding = self.config.extra_padding
         other.sph_r = self.base_radius + other.padding
         other.sph_rs = self.base_radius.copy()

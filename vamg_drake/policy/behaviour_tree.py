@@ -115,8 +115,6 @@ class SubgoalProposal:
             closing [m] (None: `BehaviourConfig.lift_height`).
         q_pull: grasp stage only: (11,) where the closed gripper pulls the
             object out before the lift (None: it lifts in place).
-        note: how the goal was found, for the behaviour's log (e.g. "tight
-            goal check"); empty when there is nothing to add.
     """
 
     success: bool
@@ -127,11 +125,6 @@ class SubgoalProposal:
     category: FailureCategory = FailureCategory.NONE
     lift_height: float | None = None
     q_pull: np.ndarray | None = None
-    note: str = ""
-
-    def found(self, what: str) -> str:
-        """The log message of an issued goal: ``what`` and the note."""
-        return f"{what} ({self.note})" if self.note else what
 
     @staticmethod
     def failure(reason: str, category: FailureCategory) -> "SubgoalProposal":
@@ -479,9 +472,9 @@ class SubgoalBehaviour:
         state.goals_issued[stage] += 1
         self._s.head = np.full(2, np.nan) if p.head is None else np.asarray(p.head, float)
         if stage == Stage.GRASP:
-            self._start_grasp(inputs, p, p.found("grasp goal found: moving to the pre-grasp pose"))
+            self._start_grasp(inputs, p, "grasp goal found: moving to the pre-grasp pose")
         elif stage == Stage.PREGRASP:
-            self._set_goal(inputs, Phase.PREGRASP, p.q_goal, p.found("pre-grasp goal found"))
+            self._set_goal(inputs, Phase.PREGRASP, p.q_goal, "pre-grasp goal found")
         else:
             self._set_goal(inputs, Phase.OBSERVE, p.q_goal, "observe goal found")
 

@@ -294,9 +294,9 @@ class StrategyBehaviour(SubgoalBehaviour):
         self._s.refund = False
         self._s.head = np.full(2, np.nan) if p.head is None else np.asarray(p.head, float)
         if stage == Stage.GRASP:
-            self._start_grasp(inputs, p, p.found(f"{self.NAME}: grasp goal found: moving to the pre-grasp pose"))
+            self._start_grasp(inputs, p, f"{self.NAME}: grasp goal found: moving to the pre-grasp pose")
         elif stage == Stage.PREGRASP:
-            self._set_goal(inputs, Phase.PREGRASP, p.q_goal, p.found(f"{self.NAME}: {self.NAVIGATION_GOAL} goal found"))
+            self._set_goal(inputs, Phase.PREGRASP, p.q_goal, f"{self.NAME}: {self.NAVIGATION_GOAL} goal found")
         else:
             self._set_goal(inputs, Phase.OBSERVE, p.q_goal, f"{self.NAME}: observe goal found")
 
@@ -525,10 +525,7 @@ def _timed(pipeline: SubgoalPipeline, name: str, sampler: SamplerFn) -> SamplerF
 def goal_check(pipeline: SubgoalPipeline) -> GoalCheckFn:
     """The pipeline's collision check of one goal under the inputs' map."""
     def goal_is_free(inputs: PolicyInputs, q_goal: np.ndarray) -> bool:
-        # The loosest check a sampler may have accepted the goal under.
-        is_free = pipeline.collision_fn(_finite_points(inputs), np.asarray(inputs.p_WT, float),
-                                        np.asarray(inputs.q, float),
-                                        tight=pipeline.config.tight_goal_padding is not None)
+        is_free = pipeline.collision_fn(_finite_points(inputs), np.asarray(inputs.p_WT, float), np.asarray(inputs.q, float))
         return bool(is_free(np.asarray(q_goal, float)[None])[0])
     return goal_is_free
 

@@ -55,10 +55,6 @@ from vamg_drake.robot.kinematics import FetchKinematics
 from vamg_drake.robot.spheres import SphereModel
 
 
-#: `SubgoalProposal.note` of a goal found by the tighter check (`SubgoalPipelineConfig.tight_goal_padding`).
-TIGHT_NOTE = "tight goal check"
-
-
 @dc.dataclass
 class SubgoalPipelineConfig:
     """Parameters of the real samplers."""
@@ -81,15 +77,6 @@ class SubgoalPipelineConfig:
     collision_max_height: float = 2.0
     #: The gripper ignores map points this close to the target [m].
     target_clearance: float = 0.10
-    #: Sphere inflation against the map [m] of a second, tighter check of the
-    #: grasp and pre-grasp goals, used only when no goal passes under the
-    #: planner's padding (half its motion resolution) although some have arm
-    #: IK: a gripper reaching down between a cup and its taller neighbour
-    #: keeps less than that from the neighbour. The planner accepts such a
-    #: goal (it is free for the unpadded spheres; the path's last piece into
-    #: it is checked unpadded, see `vamg_drake.planning.whole_body_planner`).
-    #: None: off.
-    tight_goal_padding: float | None = None
     #: Map points around the target given to the grasp candidate source [m].
     grasp_cloud_radius: float = 0.30
     #: A map point with a dense-cloud point this close is left out of the grasp cloud [m].
@@ -143,9 +130,6 @@ class SubgoalPipelineConfig:
     def validate(self) -> None:
         """Raises ValueError naming the bad field of a nested sampler config
         (``grasp_source`` is checked by `GraspSourceConfig.validate`, which names its own path)."""
-        if self.tight_goal_padding is not None and not self.tight_goal_padding >= 0.0:
-            raise ValueError(f"SubgoalPipelineConfig.tight_goal_padding: must be >= 0 or None, "
-                             f"got {self.tight_goal_padding}")
         self.ranking.validate()
         self.pregrasp.validate()
         self.observe.validate()
@@ -274,25 +258,19 @@ class SubgoalPipeline:
                     f"sides within {cfg.enclosure_range} m (inside furniture?)")
         return ""
 
-    def collision_fn(self, p_WM: np.ndarray, p_WT: np.ndarray, q: np.ndarray, grasp: bool = False,
-                     tight: bool = False):
+    def collision_fn(self, p_WM: np.ndarray, p_WT: np.ndarray, q: np.ndarray, grasp: bool = False):
         """Batched ``is_free`` for configurations near the target under map points p_WM.
 
         One distance field holds the map points near the target and the robot;
         those within ``target_clearance`` of the target may touch the gripper's
         spheres only (`CollisionEnvironment.grasp_target`), and with `grasp`
-        those of its support surface too. With `tight`, the spheres are
-        inflated by `SubgoalPipelineConfig.tight_goal_padding` (which must be
-        set) instead of the planner's padding.
+        those of its support surface too.
         """
         cfg = self.config
-        if tight and cfg.tight_goal_padding is None:
-            raise ValueError("collision_fn(tight=True) needs SubgoalPipelineConfig.tight_goal_padding")
-        which = int(grasp) + 2 * int(tight)
         key = (p_WM.shape[0], float(p_WM.sum()) if p_WM.size else 0.0, tuple(np.round(p_WT, 4)),
                tuple(np.round(np.asarray(q)[:2], 1)))
         if self._cache_key == key:
-            return self._cache[which]
+            return self._cache[int(grasp)]
         centers = np.stack([p_WT[:2], np.asarray(q, float)[:2]])
         dxy = np.min(np.linalg.norm(p_WM[:, None, :2] - centers[None], axis=2), axis=1) if p_WM.size else np.zeros(0)
         local = p_WM[(dxy <= cfg.collision_crop) & (p_WM[:, 2] <= cfg.collision_max_height)] if p_WM.size else p_WM
@@ -301,12 +279,9 @@ class SubgoalPipeline:
         env = CollisionEnvironment.from_points(local, cfg.collision_resolution, grasp_target=p_WT,
                                                grasp_target_radius=cfg.target_clearance)
         checker = SphereCollisionChecker.for_fetch(env, self.collision)
-        grasp_checker = checker.with_environment(dc.replace(env, grasp_target_floor=-np.inf))
-        checks = [checker.is_free, grasp_checker.is_free]
-        if cfg.tight_goal_padding is not None:
-            checks += [c.with_environment_padding(cfg.tight_goal_padding).is_free for c in (checker, grasp_checker)]
-        self._cache_key, self._cache = key, tuple(checks)
-        return self._cache[which]
+        grasp_free = checker.with_environment(dc.replace(env, grasp_target_floor=-np.inf)).is_free
+        self._cache_key, self._cache = key, (checker.is_free, grasp_free)
+        return self._cache[int(grasp)]
 
     @staticmethod
     def _points(inputs: PolicyInputs) -> np.ndarray:
@@ -348,17 +323,12 @@ class SubgoalPipeline:
                 goal = self._grasp_goal(kept, q, p_WM, p_WT, capability=False)
         if goal is None or not goal.success:
             goal = self._grasp_goal(candidates, q, p_WM, p_WT)
-        note = ""
-        if not goal.success and "collision" in goal.failure_reason and self.config.tight_goal_padding is not None:
-            goal = self._grasp_goal(candidates, q, p_WM, p_WT, is_free=self.collision_fn(p_WM, p_WT, q, tight=True),
-                                    grasp_is_free=self.collision_fn(p_WM, p_WT, q, grasp=True, tight=True))
-            note = TIGHT_NOTE
         if not goal.success:
             category = FailureCategory.SUBGOAL if "collision" in goal.failure_reason else FailureCategory.REACHABILITY
             return SubgoalProposal.failure(goal.failure_reason, category)
         _, head = self.visibility.check(goal.q_pregrasp[None], p_WT)
         return SubgoalProposal(True, goal.q_pregrasp, goal.q_grasp, head[0], lift_height=goal.lift_height,
-                               q_pull=goal.q_pull, note=note)
+                               q_pull=goal.q_pull)
 
     def _near_failed(self, X_WG: np.ndarray, failed: np.ndarray) -> np.ndarray:
         """(K,) True for the grasps X_WG (K, 4, 4) that repeat a failed one (`failed_grasp_radius`)."""
@@ -482,15 +452,6 @@ class SubgoalPipeline:
         result = self.pregrasp.sample(p_WM, p_WT, q, is_free, self.rng, costmap=costmap,
                                       ee_poses=ee_poses, accept=accept,
                                       tried_xy=self._tried_xy(inputs))
-        note = ""
-        if not result.success and result.funnel["ik"] > 0 and self.config.tight_goal_padding is not None:
-            # Again with the tighter goal check (`accept` reads the rebound checks).
-            is_free = self.collision_fn(p_WM, p_WT, q, tight=True)
-            grasp_is_free = self.collision_fn(p_WM, p_WT, q, grasp=True, tight=True)
-            result = self.pregrasp.sample(p_WM, p_WT, q, is_free, self.rng, costmap=costmap,
-                                          ee_poses=ee_poses, accept=accept,
-                                          tried_xy=self._tried_xy(inputs))
-            note = TIGHT_NOTE
         if not result.success:
             category = FailureCategory.REACHABILITY if result.funnel["ik"] == 0 else FailureCategory.SUBGOAL
             return SubgoalProposal.failure(result.failure_reason, category)
@@ -498,8 +459,8 @@ class SubgoalPipeline:
         if aimed_pregrasp is not None:
             sample, q_aimed, head = aimed_pregrasp
             if np.allclose(sample, result.q):
-                return SubgoalProposal(True, q_aimed, head=head, note=note)
-        return SubgoalProposal(True, result.q, head=result.head, note=note)
+                return SubgoalProposal(True, q_aimed, head=head)
+        return SubgoalProposal(True, result.q, head=result.head)
 
     def _tried_xy(self, inputs: PolicyInputs) -> np.ndarray:
         """(K, 2) the bases the pre-grasp sampler tries last: those of pre-grasp
