@@ -29,9 +29,9 @@ What the importer does, per scene:
    to launch them). The settled poses are rounded to
    ``SETTLED_POSE_DECIMALS``. An object that moves more than
    ``max_displacement`` from its file position, or ends off every
-   receptacle, is reported (``ObjectReport``) and left out; a task whose target is left out is
-   excluded with that reason. Nothing is moved silently: every object's
-   displacement is in the report.
+   receptacle, is reported (``ObjectReport``) and left out; a task whose
+   target is left out is excluded with that reason. Nothing is moved
+   silently: every object's displacement is in the report.
 3. **Tasks.** One scenario per task: the apartment, the settled objects, the
    task's target, the authors' start and, with ``dynamic``, the pedestrian
    box (``AppearAtDistance`` with ``heading_towards``) and the manipulation
@@ -422,7 +422,7 @@ def settle_objects(layout: ReplicaCadLayout, objects: list[PlacedObject], settle
     # The episode's walls too: an object that the file puts into one is pushed
     # out (and reported by its displacement), not left inside it.
     for wall in layout.walls:
-        register_primitive(plant, plant.world_body(), wall, RigidTransform(), WALL_RGBA, geometry, anchored_owner={})
+        register_primitive(plant, plant.world_body(), wall, RigidTransform(), WALL_RGBA, geometry)
     bodies = [add_ycb_body(plant, obj.name, geometry, obj.model)[1] for obj in objects]
     plant.Finalize()
     diagram = builder.Build()
