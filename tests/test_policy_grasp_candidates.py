@@ -715,6 +715,36 @@ def test_a_long_object_is_grasped_top_down_along_its_length() -> None:
         AntipodalGraspConfig(top_down_slice_step=0.0)
 
 
+def test_a_compact_object_gets_tilted_top_down_grasps_above_the_support() -> None:
+    """A 5.5 x 5 x 6 cm box (a cup's size) on a table: with
+    ``top_down_tilts_deg`` each straight-down grasp is also proposed tilted
+    by 45 and 60 deg about its level closing axis, in both directions, at
+    the lower tilted quality, the fingers and the palm above the table."""
+    z_table, yaw = 0.64, 0.3
+    center = np.array([0.0, 0.0, z_table])
+    box = clouds.box_cloud(center=center, size=(0.055, 0.05, 0.06), yaw=yaw, n=5000, noise=0.0005, seed=11)
+    cloud = np.concatenate([box, clouds.table_top_cloud(z=z_table, size=0.5, spacing=0.004)])
+    p_WT = center + np.array([0.0, 0.0, 0.03])
+    config = AntipodalGraspConfig(top_down_tilts_deg=[45.0, 60.0], max_candidates=10**4)
+    g = AntipodalGraspSampler(config).propose(cloud, p_WT)
+    _assert_valid_frames(g)
+    approach_z = g.X_WG[:, 2, 0]
+    assert np.count_nonzero(approach_z < -0.999) >= 2, g.failure_reason
+    for tilt in (45.0, 60.0):
+        # The closing axis stays level (a spun antipodal pair's is level only nearly).
+        tilted = (np.abs(approach_z + np.cos(np.radians(tilt))) < 1e-6) & (np.abs(g.X_WG[:, 2, 1]) < 1e-9)
+        assert tilted.sum() >= 2
+        # Both directions: the approach leans one way and the opposite way.
+        lean = g.X_WG[tilted, :2, 0]
+        assert np.min(lean @ lean.T) < -0.5 * np.sin(np.radians(tilt)) ** 2
+        assert np.all(g.score[tilted] <= 0.7 * config.top_down_tilted_quality + 0.3 + 1e-9)
+    assert np.all(gripper_lowest_z(g.X_WG, config.gripper, config.approach_distance) >= z_table)
+    straight_only = AntipodalGraspSampler(AntipodalGraspConfig(max_candidates=10**4)).propose(cloud, p_WT)
+    assert not np.any(np.abs(straight_only.X_WG[:, 2, 0] + np.cos(np.radians(45.0))) < 1e-6)
+    with pytest.raises(ValueError, match="top_down_tilts_deg"):
+        AntipodalGraspConfig(top_down_tilts_deg=[90.0])
+
+
 def test_near_any_grasp_ignores_the_roll_but_not_the_place_or_the_approach() -> None:
     def pose(p, yaw_about_x=0.0, approach=(1.0, 0.0, 0.0)):
         a = np.asarray(approach, float) / np.linalg.norm(approach)

@@ -226,6 +226,15 @@ class AntipodalGraspConfig:
     top_down_max_slices: int = 7
     #: Grasp quality (in [0, 1], as the antipodal alignment) given to top-down grasps.
     top_down_quality: float = 0.8
+    #: Each top-down grasp is also proposed tilted about its closing axis by
+    #: these angles [deg] (towards the side its closing axis' yaw faces; with
+    #: an even ``top_down_yaws`` the opposite yaw tilts the other way), at
+    #: quality ``top_down_tilted_quality``. Under a TV screen or a shelf a straight-down
+    #: approach puts the wrist and forearm into the overhang, and beside a taller
+    #: object the upright wrist meets it; a tilted approach reaches in lower
+    #: and from the side. Empty: straight down only.
+    top_down_tilts_deg: list[float] = dc.field(default_factory=list)
+    top_down_tilted_quality: float = 0.6
     #: Cluster points: linked to the target's nearest point by steps of at
     #: most this many point spacings, within ``grasp_radius``.
     cluster_link: float = 2.0
@@ -246,6 +255,11 @@ class AntipodalGraspConfig:
         if not self.top_down_slice_step > 0.0 or self.top_down_max_slices < 1:
             raise ValueError(f"AntipodalGraspConfig: need top_down_slice_step > 0 and top_down_max_slices >= 1, "
                              f"got {self.top_down_slice_step}, {self.top_down_max_slices}")
+        if any(not 0.0 < t < 90.0 for t in self.top_down_tilts_deg):
+            raise ValueError(f"AntipodalGraspConfig.top_down_tilts_deg must lie in (0, 90), got {self.top_down_tilts_deg}")
+        if not 0.0 <= self.top_down_tilted_quality <= 1.0:
+            raise ValueError(f"AntipodalGraspConfig.top_down_tilted_quality must be in [0, 1], "
+                             f"got {self.top_down_tilted_quality}")
         if not self.facing_approach_cos > 0.0:
             raise ValueError(f"AntipodalGraspConfig.facing_approach_cos must be > 0 (above 1: no point is left "
                              f"out), got {self.facing_approach_cos}")
@@ -428,7 +442,8 @@ class AntipodalGraspSampler:
 
         Per yaw, the pads close across slices of the cluster one pad width
         thick (`_top_down_slices`): the whole cluster when no slice fits
-        beside the middle one, else slices along it."""
+        beside the middle one, else slices along it; each also tilted by
+        ``top_down_tilts_deg``."""
         cfg = self.config
         if cfg.top_down_yaws < 1:
             return None
@@ -445,25 +460,38 @@ class AntipodalGraspSampler:
         y_axis = np.stack([np.cos(yaw), np.sin(yaw), np.zeros_like(yaw)], axis=1)
         z_axis = np.stack([-np.sin(yaw), np.cos(yaw), np.zeros_like(yaw)], axis=1)  # x cross y, x = -z_W
         g = cfg.gripper
-        out_y, out_center, out_width = [], [], []
+        out_y, out_center, out_width, out_top = [], [], [], []
         for k in range(cfg.top_down_yaws):
-            for center, width in self._top_down_slices(points, y_axis[k], z_axis[k], z_support):
+            for center, width, top in self._top_down_slices(points, y_axis[k], z_axis[k], z_support):
                 out_y.append(y_axis[k])
                 out_center.append(center)
                 out_width.append(width)
+                out_top.append(top)
         if not out_y:
             return None
         width = np.array(out_width)
         keep = (width >= cfg.min_width) & (width <= g.max_opening - 2.0 * self._margin)
         if not np.any(keep):
             return None
-        n = int(keep.sum())
-        return (np.tile([0.0, 0.0, -1.0], (n, 1)), np.array(out_y)[keep], np.array(out_center)[keep], width[keep],
-                np.full(n, cfg.top_down_quality))
+        y_axis, center, width, top = np.array(out_y)[keep], np.array(out_center)[keep], width[keep], np.array(out_top)[keep]
+        n = y_axis.shape[0]
+        x_axis = np.tile([0.0, 0.0, -1.0], (n, 1))
+        families = [(x_axis, y_axis, center, width, np.full(n, cfg.top_down_quality))]
+        side = np.cross(x_axis, y_axis)  # z of the straight-down G: level, across the closing axis
+        for tilt in np.radians(cfg.top_down_tilts_deg):
+            # The tilted pads reach less deep: their middle cos(tilt) x 3 cm
+            # under the slice's top, but not below its middle height (their
+            # first contacts span the pads' middle along z of G, which now
+            # leans). Fingertips reaching into the support fail its test.
+            tilted = center.copy()
+            tilted[:, 2] = np.maximum(top - 0.5 * g.finger_length * np.cos(tilt), 0.5 * (top + z_support))
+            families.append((np.cos(tilt) * x_axis + np.sin(tilt) * side, y_axis, tilted, width,
+                             np.full(n, cfg.top_down_tilted_quality)))
+        return tuple(np.concatenate(a) for a in zip(*families))
 
     def _top_down_slices(self, points: np.ndarray, y_axis: np.ndarray, z_axis: np.ndarray,
-                         z_support: float) -> list[tuple[np.ndarray, float]]:
-        """(contact centre, width) of top-down grasps closing along `y_axis`
+                         z_support: float) -> list[tuple[np.ndarray, float, float]]:
+        """(contact centre, width, slice top height) of top-down grasps closing along `y_axis`
         (horizontal) across slices of `points` one pad width thick along
         `z_axis`: the pads' middle 3 cm under the slice's top or, for a low
         object, as low as the fingertips clear the support; middle slice first."""
@@ -487,7 +515,7 @@ class AntipodalGraspSampler:
             height = max(top - 0.5 * g.finger_length, z_support + g.fingertip_x + cfg.top_down_floor_clearance)
             center = 0.5 * (y_lo + y_hi) * y_axis + c * z_axis
             center[2] = height
-            out.append((center, float(y_hi - y_lo)))
+            out.append((center, float(y_hi - y_lo), float(top)))
         return out
 
     def _target_cluster(self, above: np.ndarray, p_WT: np.ndarray) -> np.ndarray | None:
