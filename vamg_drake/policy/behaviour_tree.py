@@ -516,7 +516,10 @@ class SubgoalBehaviour:
         self._s.q_pull = None if p.q_pull is None else np.asarray(p.q_pull, float)
         lift = self.config.lift_height if p.lift_height is None else min(p.lift_height, self.config.lift_height)
         self._s.q_lift = layout.raised_torso(self._s.q_grasp if self._s.q_pull is None else self._s.q_pull, lift)
-        self._set_goal(inputs, Phase.GRASP_MOVE, p.q_goal, reason)
+        # How the gripper comes in, for the log: 0 deg is straight down, 90 level.
+        approach = FetchKinematics.instance().gripper_pose(self._s.q_grasp)[:3, 0]
+        tilt = np.degrees(np.arccos(np.clip(-approach[2], -1.0, 1.0)))
+        self._set_goal(inputs, Phase.GRASP_MOVE, p.q_goal, f"{reason} (approach {tilt:.0f} deg from straight down)")
 
     def _on_reached(self, inputs: PolicyInputs) -> bool:
         if self._s.phase == Phase.GRASP_MOVE:

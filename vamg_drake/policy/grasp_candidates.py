@@ -232,8 +232,10 @@ class AntipodalGraspConfig:
     #: quality ``top_down_tilted_quality``. Under a TV screen or a shelf a straight-down
     #: approach puts the wrist and forearm into the overhang, and beside a taller
     #: object the upright wrist meets it; a tilted approach reaches in lower
-    #: and from the side. Empty: straight down only.
-    top_down_tilts_deg: list[float] = dc.field(default_factory=list)
+    #: and from the side (on a stacking cup beside a taller object, under a
+    #: table's edge). A long object lying flat gets none that pass: leaning
+    #: along it, the palm meets its far end. Empty: straight down only.
+    top_down_tilts_deg: list[float] = dc.field(default_factory=lambda: [45.0, 60.0])
     top_down_tilted_quality: float = 0.6
     #: Cluster points: linked to the target's nearest point by steps of at
     #: most this many point spacings, within ``grasp_radius``.
