@@ -13,7 +13,10 @@ geometric source's own ranking of the same candidates:
   candidates executed there (the geometric source's first choice is always
   executed);
 * ``best_top1_precision_heldout``: the ceiling of any ranking of the executed
-  candidates (the scenes where at least one of them held).
+  candidates (the scenes where at least one of them held);
+* ``*_source_heldout``: the same among the candidates the geometric source
+  proposes itself (what the policy re-ranks), without the near misses its
+  first-contact test rejects that the trials also execute.
 
 Speed (seeded, no data needed): ``inference_ms_256`` is `LearnedGraspScorer.score`
 for 256 geometric candidates on a can-on-a-table cloud (the grasp-frame crops
@@ -127,6 +130,10 @@ def main() -> None:
             "geometric_auc_heldout": round(metrics["geometric_auc"], 4),
             "geometric_top1_precision_heldout": round(metrics["geometric_top1_precision"], 4),
             "best_top1_precision_heldout": round(metrics["best_top1_precision"], 4),
+            "samples_source_heldout": metrics["samples_source"],
+            "success_rate_source_heldout": round(metrics["success_rate_source"], 4),
+            "auc_source_heldout": round(metrics["auc_source"], 4),
+            "geometric_auc_source_heldout": round(metrics["geometric_auc_source"], 4),
         })
     else:
         result["quality"] = "skipped: no --data (or $VAMG_GRASP_DATA) grasp-trial directory"

@@ -3,6 +3,8 @@ NumPy inference of the exported network, and the grasp-source selection."""
 
 from __future__ import annotations
 
+import dataclasses as dc
+
 import json
 from pathlib import Path
 
@@ -68,30 +70,43 @@ def _synthetic_dataset(n: int = 96, seed: int = 0) -> GraspDataset:
     crops[success, :, 1] *= 0.35
     X_WG = np.repeat(np.eye(4)[None], n, axis=0)
     return GraspDataset(crops, X_WG, rng.uniform(0.02, 0.08, n), rng.uniform(0, 1, n), success,
-                        np.arange(n) // 4, np.arange(n) % 4, np.array(["a"] * n), np.arange(n) % 3 == 0, "synthetic")
+                        np.arange(n) // 4, np.arange(n) % 4, np.array(["a"] * n), np.arange(n) % 3 == 0,
+                        np.arange(n) % 4 == 3, "synthetic")
 
 
 def test_collector_labels_grasps_with_both_outcomes(tmp_path: Path) -> None:
     """A fixed-seed trial: the object dropped on the support, the rendered
     partial cloud, the geometric candidates executed in Drake -- some hold the
-    object, some do not; the trial file round-trips and the collector resumes
-    from it (the trial present is not run again)."""
-    config = GraspTrialConfig(objects=[MIXED_TRIAL["object_name"]], heldout=[], candidates_per_trial=6, top_k=2)
+    object, some do not -- then near misses the source's first-contact test
+    rejects, after them in rank and scored below them; the source's own
+    candidates and labels are those of a run without the near misses; the
+    trial file round-trips and the collector resumes from it (the trial
+    present is not run again)."""
+    config = GraspTrialConfig(objects=[MIXED_TRIAL["object_name"]], heldout=[], candidates_per_trial=6, top_k=2,
+                              rejected_per_trial=3)
     result = run_trial(MIXED_TRIAL["index"], MIXED_TRIAL["seed"], config)
     assert result.reason == ""
     assert result.object_name == MIXED_TRIAL["object_name"]
-    assert len(result.success) == 6
-    assert result.success.any() and not result.success.all(), result.success
-    assert result.crops.shape == (6, config.crop.num_points, 3)
+    assert len(result.success) == 9
+    np.testing.assert_array_equal(result.rejected, np.arange(9) >= 6)
+    own = ~result.rejected
+    assert result.success[own].any() and not result.success[own].all(), result.success
+    assert result.crops.shape == (9, config.crop.num_points, 3)
     assert np.all(result.crop_counts > 0)
     assert np.all(np.abs(result.crops) <= 1.0 + 1e-6)  # G-frame crop within the radius
     assert result.rank[0] == 0  # the geometric source's first choice is always executed
+    assert np.all(result.rank[~own] >= result.num_candidates)
+    assert result.score[~own].max() < result.score[own].min()
+    without = run_trial(MIXED_TRIAL["index"], MIXED_TRIAL["seed"], dc.replace(config, rejected_per_trial=0))
+    np.testing.assert_array_equal(without.success, result.success[own])
+    np.testing.assert_array_equal(without.rank, result.rank[own])
 
     result.save(tmp_path / "trial_00000.npz")
     manifest = collect(tmp_path, trials=2, seed=0, config=config, progress=False, time_budget=0.0)
-    assert manifest["num_trials"] == 1 and manifest["num_samples"] == 6  # trial 0 kept, trial 1 not started
+    assert manifest["num_trials"] == 1 and manifest["num_samples"] == 9  # trial 0 kept, trial 1 not started
     data = load_dataset(tmp_path)
     np.testing.assert_array_equal(data.success, result.success)
+    np.testing.assert_array_equal(data.rejected, result.rejected)
     assert json.loads((tmp_path / "manifest.json").read_text())["seed"] == 0
     with pytest.raises(ValueError, match="manifest.json"):
         collect(tmp_path, trials=2, seed=1, config=config, progress=False, time_budget=0.0)

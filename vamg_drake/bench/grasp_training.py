@@ -242,7 +242,7 @@ def evaluate(model: GraspQualityModel, data: GraspDataset) -> dict:
     """AUC and top-1 precision of the model and of the geometric ranking on ``data``."""
     p = model.predict(data.crops[:, :model.crop.num_points], dataset_features(data))
     geometric = -data.rank.astype(float)  # rank 0 is the geometric source's first choice
-    return {
+    metrics = {
         "samples": len(data), "scenes": int(len(np.unique(data.trial))),
         "success_rate": float(np.mean(data.success)) if len(data) else float("nan"),
         "auc": roc_auc(p, data.success), "top1_precision": top1_precision(p, data.success, data.trial),
@@ -251,6 +251,16 @@ def evaluate(model: GraspQualityModel, data: GraspDataset) -> dict:
         # The best any ranking of the executed candidates can do: scenes with one that held.
         "best_top1_precision": top1_precision(data.success.astype(float), data.success, data.trial),
     }
+    # The same among the candidates the source itself proposes (what the
+    # policy re-ranks), without the first-contact-rejected near misses.
+    own = ~data.rejected
+    metrics.update({
+        "samples_source": int(own.sum()),
+        "success_rate_source": float(np.mean(data.success[own])) if own.any() else float("nan"),
+        "auc_source": roc_auc(p[own], data.success[own]),
+        "geometric_auc_source": roc_auc(data.score[own], data.success[own]),
+    })
+    return metrics
 
 
 def train_model(data: GraspDataset, config: GraspTrainingConfig | None = None, crop: GraspCropConfig | None = None,

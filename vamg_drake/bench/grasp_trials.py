@@ -5,8 +5,9 @@ support (the drop check), seen by the head camera from one or more plausible
 base poses (a rendered depth image per view, back-projected as the robot's
 perception does), optionally completed by the mirror as the subgoal pipeline
 does, given to the geometric grasp source, and a subset of its candidates
-executed with the oracle's free gripper in Drake (approach, close, lift,
-hold: `vamg_drake.bench.oracle_grasp.simulate_grasp`). Each executed
+(with a few near misses its first-contact test rejects) executed with the
+oracle's free gripper in Drake (approach, close, lift, hold:
+`vamg_drake.bench.oracle_grasp.simulate_grasp`). Each executed
 candidate is recorded with its cloud crop in the grasp frame, pose, width,
 geometric score and outcome.
 
@@ -39,6 +40,7 @@ from vamg_drake.perception.depth_points import DepthBackProjector, DepthToPoints
 from vamg_drake.perception.point_clusters import MirrorCompletionConfig, mirrored_object_points
 from vamg_drake.perception.shape_depth_render import ShapeDepthRenderer, look_at
 from vamg_drake.policy.grasp_candidates import AntipodalGraspConfig, AntipodalGraspSampler, GripperGeometry
+from vamg_drake.policy.grasp_ranking import near_any_grasp
 from vamg_drake.policy.learned_grasps import GraspCropConfig, grasp_frame_crops
 from vamg_drake.robot.head_camera import CameraIntrinsics, HeadCameraConfig
 from vamg_drake.world.drop_check import DropCheckConfig, drop_object
@@ -49,8 +51,13 @@ from vamg_drake.world.ycb import YCB_OBJECTS, load_ycb_asset
 #: family -- cans, fruit, balls, cups, Lego, tools -- is represented on both sides).
 DEFAULT_HELDOUT: tuple[str, ...] = tuple(list(YCB_OBJECTS)[2::5])
 
+#: A first-contact-rejected candidate within this distance [m] and approach
+#: angle [rad] of one of the source's is the same grasp, not a near miss.
+REJECTED_RADIUS = 0.01
+REJECTED_ANGLE = math.radians(15.0)
+
 #: Bump when the trial format or the labelling changes.
-TRIAL_FORMAT_VERSION = 2
+TRIAL_FORMAT_VERSION = 3
 
 
 def fetch_oracle_config() -> OracleGraspConfig:
@@ -79,6 +86,17 @@ class GraspTrialConfig:
         candidates_per_trial: candidates executed per trial: the top ``top_k``
             by geometric score, the rest drawn uniformly from the others.
         top_k: see ``candidates_per_trial``.
+        rejected_per_trial: further candidates executed per trial, drawn
+            uniformly from those the source's first-contact test rejects
+            (`without_first_contact_test`: collision-free, pads anywhere on
+            the object) and not near one of its own: the near misses a ranking
+            has to tell from good grasps (fingers on a rim, contacts at the
+            fingertips, across an edge). With only the source's candidates
+            nearly every grasp holds in the free-gripper physics and the
+            labels hold too few failures to learn from.
+        rejected_score_scale: their recorded geometric score is the relaxed
+            source's times this, below every level the policy's source
+            proposes (it never proposes them); their rank follows the source's.
         drop_attempts: placements tried before a trial gives up.
         oracle_check: skip a placement that the benchmark's oracle grasp
             check (`OracleGraspConfig`, as `paper_static` and the procedural
@@ -113,6 +131,8 @@ class GraspTrialConfig:
     camera: HeadCameraConfig = dc.field(default_factory=HeadCameraConfig)
     candidates_per_trial: int = 8
     top_k: int = 3
+    rejected_per_trial: int = 4
+    rejected_score_scale: float = 0.1
     drop_attempts: int = 4
     oracle_check: bool = True
     depth_noise: float = 0.001
@@ -121,6 +141,15 @@ class GraspTrialConfig:
     crop: GraspCropConfig = dc.field(default_factory=GraspCropConfig)
     grasps: AntipodalGraspConfig = dc.field(default_factory=lambda: AntipodalGraspConfig(facing_approach_cos=0.866))
     mirror: MirrorCompletionConfig = dc.field(default_factory=MirrorCompletionConfig)
+
+    def validate(self) -> None:
+        """Raises ValueError naming the bad field."""
+        if self.candidates_per_trial < 1 or not 0 <= self.top_k <= self.candidates_per_trial:
+            raise ValueError(f"GraspTrialConfig: need candidates_per_trial >= 1 and 0 <= top_k <= it, "
+                             f"got {self.candidates_per_trial}, {self.top_k}")
+        if self.rejected_per_trial < 0 or not 0.0 < self.rejected_score_scale <= 1.0:
+            raise ValueError(f"GraspTrialConfig: need rejected_per_trial >= 0 and rejected_score_scale in (0, 1], "
+                             f"got {self.rejected_per_trial}, {self.rejected_score_scale}")
 
     def object_names(self) -> list[str]:
         names = list(self.objects) or list(YCB_OBJECTS)
@@ -149,6 +178,7 @@ class TrialResult:
     rank: np.ndarray  # (K,) rank among the geometric candidates (0: best)
     success: np.ndarray  # (K,) bool
     lift: np.ndarray  # (K,)
+    rejected: np.ndarray  # (K,) bool: rejected by the source's first-contact test
 
     def save(self, path: Path) -> None:
         arrays = {k: v for k, v in dc.asdict(self).items() if isinstance(v, np.ndarray)}
@@ -163,7 +193,18 @@ class TrialResult:
         with np.load(path, allow_pickle=False) as data:
             meta = json.loads(str(data["meta"]))
             arrays = {k: data[k] for k in data.files if k != "meta"}
+        missing = sorted({f.name for f in dc.fields(TrialResult)} - set(meta) - set(arrays))
+        if missing:
+            raise ValueError(f"{path}: no {', '.join(missing)} (a trial file of an older format than "
+                             f"{TRIAL_FORMAT_VERSION}; collect the trials again)")
         return TrialResult(**meta, **arrays)
+
+
+def without_first_contact_test(config: AntipodalGraspConfig) -> AntipodalGraspConfig:
+    """`config` with the pads' first-contact test made vacuous (every normal
+    in the friction cone, contacts anywhere along the pads and across them):
+    its candidates need only clear the cloud and the support."""
+    return dc.replace(config, contact_friction_coefficient=1e6, min_tip_distance=0.0, min_pad_span=0.0)
 
 
 def _support_box(height: float, size: list[float]) -> WorldBox:
@@ -218,7 +259,7 @@ def run_trial(index: int, seed: int, config: GraspTrialConfig, oracle: OracleGra
         n = config.crop.num_points
         return TrialResult(index, name, heldout, views, mirrored, num, reason, np.zeros((0, n, 3), np.float32),
                            np.zeros(0, int), np.zeros((0, 4, 4)), np.zeros(0), np.zeros(0), np.zeros(0, int),
-                           np.zeros(0, bool), np.zeros(0))
+                           np.zeros(0, bool), np.zeros(0), np.zeros(0, bool))
 
     drop = None
     for _ in range(config.drop_attempts):
@@ -267,17 +308,30 @@ def run_trial(index: int, seed: int, config: GraspTrialConfig, oracle: OracleGra
     top = np.arange(min(config.top_k, k))
     rest = rng.choice(np.arange(len(top), len(candidates)), size=k - len(top), replace=False)
     chosen = np.concatenate([top, np.sort(rest)]).astype(int)
+    X_WG, width = candidates.X_WG[chosen], candidates.width[chosen]
+    score, rank = candidates.score[chosen], chosen
+    if config.rejected_per_trial > 0:
+        # Their own stream: the source's candidates and labels stay those of a run without them.
+        relaxed_rng = np.random.default_rng([seed, index, 2])
+        relaxed = AntipodalGraspSampler(without_first_contact_test(config.grasps)).propose(cloud, p_WT, relaxed_rng)
+        fresh = np.flatnonzero(~near_any_grasp(relaxed.X_WG, candidates.X_WG, REJECTED_RADIUS, REJECTED_ANGLE))
+        if fresh.size:
+            extra = np.sort(relaxed_rng.choice(fresh, size=min(config.rejected_per_trial, fresh.size), replace=False))
+            X_WG = np.concatenate([X_WG, relaxed.X_WG[extra]])
+            width = np.concatenate([width, relaxed.width[extra]])
+            score = np.concatenate([score, config.rejected_score_scale * relaxed.score[extra]])
+            rank = np.concatenate([rank, len(candidates) + extra])
+    rejected = np.arange(len(rank)) >= k
     # Its own stream: the labels do not depend on how crops are drawn.
-    crops, counts = grasp_frame_crops(cloud, candidates.X_WG[chosen], config.crop, np.random.default_rng([seed, index, 1]))
-    success, lift = np.zeros(k, bool), np.zeros(k)
-    for j, c in enumerate(chosen):
-        X_WG = perturbed(candidates.X_WG[c], config.execution_position_noise, config.execution_rotation_noise, rng)
+    crops, counts = grasp_frame_crops(cloud, X_WG, config.crop, np.random.default_rng([seed, index, 1]))
+    success, lift = np.zeros(len(rank), bool), np.zeros(len(rank))
+    for j in range(len(rank)):
+        X_exec = perturbed(X_WG[j], config.execution_position_noise, config.execution_rotation_noise, rng)
         ok, rise, _ = simulate_grasp(name, X_WO, support,
-                                     oracle_candidate(X_WG, candidates.width[c], config.grasps.gripper), oracle)
+                                     oracle_candidate(X_exec, width[j], config.grasps.gripper), oracle)
         success[j], lift[j] = ok, rise
     return TrialResult(index, name, heldout, views, mirrored, len(candidates), "", crops.astype(np.float32), counts,
-                       candidates.X_WG[chosen], candidates.width[chosen], candidates.score[chosen], chosen,
-                       success, lift)
+                       X_WG, width, score, rank.astype(int), success, lift, rejected)
 
 
 def _trial_path(out: Path, index: int) -> Path:
@@ -298,6 +352,7 @@ def collect(out: str | Path, trials: int, seed: int = 0, workers: int = 1, confi
     skipped) and writes the manifest; stops starting new trials after
     ``time_budget`` seconds. Returns the manifest."""
     config = config or GraspTrialConfig()
+    config.validate()
     config.object_names()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -358,7 +413,8 @@ def _write_manifest(out: Path, seed: int, config: GraspTrialConfig, complete: bo
 class GraspDataset:
     """Samples of a trial directory, flattened: crops (M, N, 3), grasp poses
     (M, 4, 4), width, score, success, and per sample the trial index, the
-    geometric rank, object and split."""
+    geometric rank, object, split and whether the source's first-contact
+    test rejected it."""
 
     crops: np.ndarray
     X_WG: np.ndarray
@@ -369,11 +425,13 @@ class GraspDataset:
     rank: np.ndarray
     objects: np.ndarray
     heldout: np.ndarray
+    rejected: np.ndarray
     digest: str
 
     def subset(self, mask: np.ndarray) -> "GraspDataset":
         return GraspDataset(self.crops[mask], self.X_WG[mask], self.width[mask], self.score[mask], self.success[mask],
-                            self.trial[mask], self.rank[mask], self.objects[mask], self.heldout[mask], self.digest)
+                            self.trial[mask], self.rank[mask], self.objects[mask], self.heldout[mask],
+                            self.rejected[mask], self.digest)
 
     def __len__(self) -> int:
         return int(self.success.shape[0])
@@ -405,5 +463,5 @@ def load_dataset(data: str | Path) -> GraspDataset:
         crops=cat("crops").astype(np.float32), X_WG=cat("X_WG"), width=cat("width"), score=cat("score"), success=cat("success"),
         trial=np.repeat([r.index for r in parts], k), rank=cat("rank"),
         objects=np.repeat([r.object_name for r in parts], k), heldout=np.repeat([r.heldout for r in parts], k),
-        digest=digest.hexdigest()[:16],
+        rejected=cat("rejected"), digest=digest.hexdigest()[:16],
     )
