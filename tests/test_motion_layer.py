@@ -1,6 +1,7 @@
 """The motion layer of the WholeBodyPlanner system: linear and hold goals,
 planner exceptions, the replanning limit, reaching and settling."""
 
+import dataclasses as dc
 import logging
 
 import numpy as np
@@ -10,7 +11,7 @@ from pydrake.systems.analysis import Simulator
 
 from vamg_drake.perception.raycast_map import PointMapSnapshot
 from vamg_drake.planning.collision_environment import CollisionEnvironment
-from vamg_drake.planning.sphere_collision import SphereCollisionChecker
+from vamg_drake.planning.sphere_collision import SphereCollisionChecker, densify
 from vamg_drake.planning.motion_messages import MotionEvent, Phase, SubgoalCommand
 from vamg_drake.planning.motion_supervisor import (
     EXCEPTION_REASON,
@@ -123,6 +124,37 @@ def test_arm_floor_clearance_sees_the_gripper_on_the_floor():
     down[layout.TORSO] = 0.0
     down[layout.ARM] = [0.0, 1.5, 0.0, 0.0, 0.0, 0.0, 0.0]  # shoulder lifted down: the arm points at the floor
     assert arm_floor_clearance(checker, np.stack([q, down])) < 0.0
+
+
+def test_the_planners_checker_keeps_the_arm_above_the_floor():
+    """The map holds no floor points, but the planner's checker rejects an arm
+    below ``arm_floor_clearance`` (padded spheres), the base's spheres exempt.
+    Between two low arm configurations whose straight motion sweeps the
+    forearm 12 cm through the floor of an empty map, the plan keeps the
+    unpadded arm at least the motion layer's clearance above it; without the
+    floor test the planner takes the straight motion."""
+    q = layout.stow_configuration(0.0, 0.0, 0.0)
+    down = q.copy()
+    down[layout.TORSO] = 0.0
+    down[layout.ARM] = [0.0, 0.9, 0.0, 0.5, 0.0, 0.5, 0.0]  # the gripper below the floor
+    checker = SphereCollisionChecker.for_fetch(CollisionEnvironment())
+    assert checker.is_free(q[None])[0] and not checker.is_free(down[None])[0]
+    assert checker.drive_free(np.array([[0.5, 0.2, 0.3]]), q[3:])[0]  # the base's own spheres reach below z = 0
+    no_floor_config = PlannerConfig(attempt_wall_limit_s=5.0, arm_floor_clearance=None)
+    assert SphereCollisionChecker.for_fetch(CollisionEnvironment(), no_floor_config.checker_config()).is_free(down[None])[0]
+
+    a = np.array([0.0, 0.0, 0.0, 0.02, 0.37, 0.93, -1.32, 0.94, 0.1, 0.67, 1.47])
+    b = np.array([0.0, 0.0, 0.0, 0.04, -1.56, 0.88, 0.96, -0.58, 2.74, 0.0, -2.03])
+    needed = PlannerSystemConfig().floor_clearance
+    plans = {}
+    for name, config in (("floor", PlannerConfig(attempt_wall_limit_s=5.0)), ("no floor", no_floor_config)):
+        planner = WholeBodyPlanner.for_fetch(CollisionEnvironment(), config)
+        assert min(arm_floor_clearance(planner.checker, a[None]), arm_floor_clearance(planner.checker, b[None])) > 0.05
+        result = planner.plan(a, b)
+        assert result.success, (name, result.message)
+        plans[name] = arm_floor_clearance(planner.checker, densify(result.trajectory.q, planner.checker, 0.005))
+    assert plans["floor"] >= needed, plans
+    assert plans["no floor"] < 0.0, plans
 
 
 def test_hold_goal_stops_the_robot():

@@ -52,9 +52,10 @@ def test_map_field_free_implies_exactly_free(room):
 
 
 def test_self_collision_matches_sphere_model():
-
+    """On an empty map without the floor test, only joint limits and self-collision decide."""
     checker = SphereCollisionChecker.for_fetch(CollisionEnvironment(),
-                                         CollisionCheckerConfig(motion_resolution=0.0, self_padding=0.0))
+                                         CollisionCheckerConfig(motion_resolution=0.0, self_padding=0.0,
+                                                                arm_floor_clearance=None))
     Q = _random_configs(np.random.default_rng(2), 3000)
     expected = SphereModel.load().self_collision_free(Q) & layout.within_limits(Q)
     np.testing.assert_array_equal(checker.is_free(Q), expected)

@@ -41,28 +41,19 @@ EXCEPTION_REASON = "exception"
 REPLAN_LIMIT_REASON = "replan_limit"
 #: `PlannedTrajectory.reason` when a planned path takes the arm into the floor.
 FLOOR_REASON = "arm_below_floor"
-#: Links whose spheres must stay above the floor (the arm; the base's own spheres reach below it).
-ARM_LINKS = ("shoulder_pan_link", "shoulder_lift_link", "upperarm_roll_link", "elbow_flex_link",
-             "forearm_roll_link", "wrist_flex_link", "wrist_roll_link", "gripper_link")
-
-
-@functools.cache
-def _arm_spheres() -> tuple[np.ndarray, np.ndarray]:
-    """(mask (S,), unpadded radii (S,)) of the sphere model's arm spheres."""
-    spheres = SphereModel.load()
-    return np.isin(np.asarray(spheres.link_names)[spheres.link_index], ARM_LINKS), spheres.radius
 
 
 def arm_floor_clearance(checker: SphereCollisionChecker, path: np.ndarray) -> float:
     """The lowest point of the arm's (unpadded) spheres over the configurations
     path (K, 11) [m], from the checker's compiled sphere centres.
 
-    The map drops the floor (its points are not obstacles), so the planner's
-    checker does not see it; the motion layer checks planned paths against it.
+    The map drops the floor (its points are not obstacles); the planner's
+    checker keeps the arm above it (`CollisionCheckerConfig.arm_floor_clearance`)
+    at its checked states, and the motion layer checks the planned path too.
     """
-    arm, radius = _arm_spheres()
+    arm = checker.is_arm
     centres = checker.sphere_centers(np.atleast_2d(path))[:, arm]
-    return float(np.min(centres[..., 2] - radius[arm]))
+    return float(np.min(centres[..., 2] - checker.base_radius[arm]))
 
 
 @dc.dataclass

@@ -95,6 +95,7 @@ def _env_free(C, data):
     pts, cell_keys, cell_start, tgt_c, tgt_r, sph_test = data[24], data[25], data[26], data[27], data[28], data[29]
     box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env = (data[30], data[31], data[32], data[33],
                                                                      data[34], data[35], data[36], data[37])
+    lowest_centre = data[49]
     S = C.shape[0]
     lx0, ly0, lz0 = 1e300, 1e300, 1e300
     hx0, hy0, hz0 = -1e300, -1e300, -1e300
@@ -102,6 +103,8 @@ def _env_free(C, data):
         if not check_env[s]:
             continue
         cx, cy, cz = C[s, 0], C[s, 1], C[s, 2]
+        if cz < lowest_centre[s]:  # below the floor (the map keeps no floor points)
+            return False
         r = sph_r[s]
         lx0 = min(lx0, cx - r)
         ly0 = min(ly0, cy - r)
@@ -270,7 +273,8 @@ def _config_free(Q, b, data):
     `SphereCollisionChecker.base_pose_check_data`: scratch arrays T, C, PW, the
     environment's AABBs, `near` and the extended configuration V (head and
     fingers set, in place of the head that `SphereCollisionChecker._args`
-    starts with), then the rest of `_args`). One tuple
+    starts with), then the rest of `_args` but its last (the lowest sphere
+    centres allowed), a scratch LB, and that last). One tuple
     instead of ~45 array arguments: a compiled call costs ~20 ns per array
     argument (reference counting), as much as the check itself.
 
@@ -295,7 +299,7 @@ def batch_free(Q, head, parent, X_PJ, joint_type, axis, var_index,
                has_field, dist, origin, h, margin, pts, cell_keys, cell_start, tgt_c, tgt_r, sph_test,
                box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
                prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere, lb_c, lb_r, pair_end, bp_end,
-               order, stop_at_first, out):
+               lowest_centre, order, stop_at_first, out):
     """out[b] = config Q[b] free; visits rows in `order`; optional early exit.
 
     Returns the first row found in collision (in visiting order) or -1.
@@ -312,7 +316,8 @@ def batch_free(Q, head, parent, X_PJ, joint_type, axis, var_index,
             sph_link, sph_c, sph_r, sph_rs, pairs, q_lo, q_hi,
             has_field, dist, origin, h, margin, pts, cell_keys, cell_start, tgt_c, tgt_r, sph_test,
             box_p, box_R, box_half, cyl_p, cyl_R, cyl_r, cyl_hl, check_env,
-            prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere, lb_c, lb_r, pair_end, bp_end, LB)
+            prim_link, prim_kind, prim_X, prim_half, bp_prim, bp_sphere, lb_c, lb_r, pair_end, bp_end, LB,
+            lowest_centre)
     first = -1
     for n in range(order.shape[0]):
         b = order[n]
@@ -344,14 +349,14 @@ def held_spheres(data, C0):
 @numba.njit(cache=True, inline="always")
 def _held_pose_free(x, y, th, data):
     """Configuration (x, y, th, held torso + arm) free, from the tuple's
-    base-frame sphere centres data[49] (see `held_spheres`): the base moves
+    base-frame sphere centres data[50] (see `held_spheres`): the base moves
     them rigidly (planar joints: x, y, then yaw about z); only the
     environment is tested."""
     q_lo, q_hi = data[17], data[18]
     if not (x >= q_lo[0] and x <= q_hi[0] and y >= q_lo[1] and y <= q_hi[1] and th >= q_lo[2]
             and th <= q_hi[2]):
         return False
-    C, C0 = data[2], data[49]
+    C, C0 = data[2], data[50]
     c = math.cos(th)
     sn = math.sin(th)
     for s in range(C0.shape[0]):
@@ -366,8 +371,8 @@ def held_poses_free(poses, data, out):
     """out[m] = configuration (poses[m] (x, y, theta), held torso + arm) is
     free, for a tuple of `SphereCollisionChecker.base_pose_check_data` on a planar
     base: self-collision and joint limits of the torso + arm were tested once
-    (data[50][0]); per pose only the environment."""
-    if not data[50][0]:
+    (data[51][0]); per pose only the environment."""
+    if not data[51][0]:
         out[:] = False
         return
     for m in range(poses.shape[0]):
@@ -386,8 +391,8 @@ def base_pose_free_exact(x, y, theta, data):
     """Whole-body validity at base pose (x, y, theta) with the torso/arm of
     `SphereCollisionChecker.base_pose_check_data` (a tuple it made; numba-callable)."""
     th = (theta + math.pi) % (2.0 * math.pi) - math.pi
-    if data[50][1]:  # planar base: the held torso + arm's spheres moved rigidly
-        return data[50][0] and _held_pose_free(x, y, th, data)
+    if data[51][1]:  # planar base: the held torso + arm's spheres moved rigidly
+        return data[51][0] and _held_pose_free(x, y, th, data)
     Q = data[0]
     Q[0, 0] = x
     Q[0, 1] = y

@@ -28,7 +28,7 @@ from vamg_drake.planning.sphere_checks import (TEST_CELLS, TEST_POINTS, TEST_TAR
                                                held_poses_free, held_spheres)
 from vamg_drake.robot import kinematics, layout
 from vamg_drake.robot.kinematics import FetchKinematics
-from vamg_drake.robot.spheres import SphereModel, sphere_centres
+from vamg_drake.robot.spheres import ARM_LINKS, SphereModel, sphere_centres
 
 
 @functools.lru_cache(maxsize=4096)
@@ -114,6 +114,13 @@ class CollisionCheckerConfig:
             (`base_extra_padding`, the base costmap). Cells are the
             map's voxels where the field's resolution is the map's voxel size
             (`DistanceField.from_points` uses the same grid).
+        arm_floor_clearance: the arm's spheres (`is_arm`; their padded radii)
+            stay this far above the floor at z = 0 [m], so that between
+            checked states (a sphere moves up to ``motion_resolution``) the
+            unpadded ones keep at least this clearance. The map drops the
+            floor's points (the base stands on them), so without it the
+            planner routes the arm through the floor under a low target.
+            None: no floor test.
     """
 
     motion_resolution: float = 0.03
@@ -123,6 +130,7 @@ class CollisionCheckerConfig:
     self_padding: float = 0.015
     base_extra_padding: float = 0.0
     occupied_cells: bool = True
+    arm_floor_clearance: float | None = 0.02
 
 
 class SphereCollisionChecker:
@@ -145,7 +153,7 @@ class SphereCollisionChecker:
     def __init__(self, tree, link_index, center_L, radius, self_collision_pairs,
                  env: CollisionEnvironment, config: CollisionCheckerConfig | None = None,
                  body_primitives=(), prune_self_tests: bool = True, is_gripper: np.ndarray | None = None,
-                 is_base: np.ndarray | None = None):
+                 is_base: np.ndarray | None = None, is_arm: np.ndarray | None = None):
         self.tree = tree
         config = config or CollisionCheckerConfig()
         self.config = config
@@ -158,6 +166,9 @@ class SphereCollisionChecker:
                         else np.ascontiguousarray(is_base, dtype=np.bool_).reshape(self.sph_link.shape[0]))
         self.sph_r = self.base_radius + self.padding + config.base_extra_padding * self.is_base
         self.sph_rs = self.base_radius + config.self_padding
+        self.is_arm = (np.zeros(self.sph_link.shape[0], dtype=np.bool_) if is_arm is None
+                       else np.ascontiguousarray(is_arm, dtype=np.bool_).reshape(self.sph_link.shape[0]))
+        self.lowest_centre = self._lowest_centres(self.sph_r)
         self.head = np.array([config.head_pan, config.head_tilt], dtype=float)
         self.q_lo = np.ascontiguousarray(layout.Q_LOWER, dtype=float)
         self.q_hi = np.ascontiguousarray(layout.Q_UPPER, dtype=float)
@@ -185,15 +196,24 @@ class SphereCollisionChecker:
         self._planar_base()
         self.set_environment(env)
 
+    def _lowest_centres(self, sph_r: np.ndarray) -> np.ndarray:
+        """(S,) lowest world z allowed of each sphere's centre (radii `sph_r`):
+        the arm's keep ``arm_floor_clearance`` above the floor, the rest any."""
+        clearance = self.config.arm_floor_clearance
+        if clearance is None:
+            return np.full(sph_r.shape[0], -np.inf)
+        return np.ascontiguousarray(np.where(self.is_arm, sph_r + clearance, -np.inf))
+
     @staticmethod
     def for_fetch(env: CollisionEnvironment, config: CollisionCheckerConfig | None = None) -> "SphereCollisionChecker":
         """The checker for the authored Fetch model and its sphere model."""
         spheres = SphereModel.load()
         tree = FetchKinematics.instance().tree
+        links = np.asarray(spheres.link_names)[spheres.link_index]
         return SphereCollisionChecker(tree, spheres.link_index, spheres.center_L, spheres.radius,
                                 spheres.self_collision_pairs, env, config,
                                 body_primitives=spheres.body_primitives, is_gripper=spheres.is_gripper,
-                                is_base=np.array([spheres.link_names[i] == "base_link" for i in spheres.link_index]))
+                                is_base=links == "base_link", is_arm=np.isin(links, ARM_LINKS))
 
     @staticmethod
     def _body_arrays(prims):
@@ -243,6 +263,7 @@ class SphereCollisionChecker:
         other.padding = self.config.extra_padding
         other.sph_r = self.base_radius + other.padding
         other.sph_rs = self.base_radius.copy()
+        other.lowest_centre = other._lowest_centres(other.sph_r)
         other._self_cull = self._self_cull_bare
         return other
 
@@ -294,7 +315,7 @@ class SphereCollisionChecker:
                 self.sph_link, self.sph_c, self.sph_r, self.sph_rs, self.pairs, self.q_lo, self.q_hi,
                 *self._field,
                 e.box_p, e.box_R, e.box_half, e.cyl_p, e.cyl_R, e.cyl_radius, e.cyl_half_length,
-                self.check_env, *self._body, *self._self_cull)
+                self.check_env, *self._body, *self._self_cull, self.lowest_centre)
 
     def base_pose_check_data(self, torso_arm: np.ndarray) -> tuple:
         """The arguments of `base_pose_free_exact` for the torso + arm (8,)
@@ -313,7 +334,8 @@ class SphereCollisionChecker:
         env_aabbs(e.box_p, e.box_R, e.box_half, e.cyl_p, e.cyl_R, e.cyl_radius, e.cyl_half_length, env_aabb)
         near = np.empty(env_aabb.shape[0], dtype=np.int64)
         V = kinematics.extend_configuration(Q, self.head)[0]
-        data = (Q, T, C, PW, env_aabb, near, V) + tuple(self._args())[1:] + (np.empty((self.tree.parent.shape[0], 3)),)
+        args = tuple(self._args())
+        data = (Q, T, C, PW, env_aabb, near, V) + args[1:-1] + (np.empty((self.tree.parent.shape[0], 3)), args[-1])
         C0 = np.empty_like(C)
         flags = np.array([False, self._planar_base()])
         data += (C0, flags)

@@ -132,6 +132,9 @@ class PlannerConfig:
         along_path_first_iterations: iterations of the along-path search (c)
             before the fixed-base searches (d) are tried; it resumes after
             them up to `rrt_max_iterations`.
+        arm_floor_clearance: the arm's (padded) spheres stay this far above
+            the floor at every checked state [m]; the map has no floor points
+            (`CollisionCheckerConfig.arm_floor_clearance`). None: no floor.
         placement_fractions: where along the base path (fraction of its
             length) the arm may start unfolding; 1.0 = at the goal placement.
         fold_fractions: fractions of the base path over which the arm may fold
@@ -167,6 +170,7 @@ class PlannerConfig:
     extra_padding: float = 0.0
     base_extra_padding: float = 0.03
     occupied_cells: bool = True
+    arm_floor_clearance: float | None = 0.02
     base_shortcut_iterations: int = 15
     arm_shortcut_iterations: int = 25
     along_path_shortcut_iterations: int = 6
@@ -188,7 +192,8 @@ class PlannerConfig:
         planner; the subgoal samplers check their goals with the same."""
         return CollisionCheckerConfig(motion_resolution=self.motion_resolution, extra_padding=self.extra_padding,
                                       base_extra_padding=self.base_extra_padding,
-                                      occupied_cells=self.occupied_cells)
+                                      occupied_cells=self.occupied_cells,
+                                      arm_floor_clearance=self.arm_floor_clearance)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -32,6 +32,9 @@ from vamg_drake.robot.kinematics import FetchKinematics, _parse_origin, link_tra
 
 SPHERES_YAML = kinematics.MODELS_DIR / "fetch" / "spheres.yaml"
 FINGER_LINKS = ("l_gripper_finger_link", "r_gripper_finger_link")
+#: Links whose spheres must stay above the floor (the arm; the base's own spheres reach below it).
+ARM_LINKS = ("shoulder_pan_link", "shoulder_lift_link", "upperarm_roll_link", "elbow_flex_link",
+             "forearm_roll_link", "wrist_flex_link", "wrist_roll_link", "gripper_link")
 #: Links whose spheres move with the head joints (not part of the 11-D q).
 HEAD_LINKS = ("head_pan_link", "head_tilt_link")
 
