@@ -87,9 +87,10 @@ class GraspTrialConfig:
             by geometric score, the rest drawn uniformly from the others.
         top_k: see ``candidates_per_trial``.
         rejected_per_trial: further candidates executed per trial, drawn
-            uniformly from those the source's first-contact test rejects
-            (`without_first_contact_test`: collision-free, pads anywhere on
-            the object) and not near one of its own: the near misses a ranking
+            uniformly from those of the source with its first-contact test
+            off (`without_first_contact_test`: collision-free, pads anywhere
+            on the object) that are not near one of its own, so mostly those
+            the test rejects: the near misses a ranking
             has to tell from good grasps (fingers on a rim, contacts at the
             fingertips, across an edge). With only the source's candidates
             nearly every grasp holds in the free-gripper physics and the
