@@ -31,7 +31,6 @@ from vamg_drake.planning.trajectory import TimedTrajectory
 from vamg_drake.planning.whole_body_planner import FailureReason, PlannerConfig, PlanResult, WholeBodyPlanner
 from vamg_drake.robot import layout
 from vamg_drake.robot.kinematics import FetchKinematics
-from vamg_drake.robot.spheres import SphereModel
 
 _log = logging.getLogger(__name__)
 
