@@ -157,3 +157,47 @@ def test_grasp_attempts_count_closed_retried_and_pulled_grasps_from_the_phases()
     assert (full["n"], full["closed"], full["retried"], full["pulled"], full["grasp_failures"]) == (3, 3, 1, 1, 1)
     assert full["failed_per_closed"] == pytest.approx(200.0 / 3)
     assert rows["nav_and_manip"]["failed_per_closed"] == 0.0
+
+
+def test_common_task_records_keep_the_tasks_every_method_of_a_suite_ran(tmp_path):
+    import json
+
+    from vamg_drake.bench.report import common_task_records, write_report
+
+    def rec(suite, method, target, status, d=None):
+        return {"key": f"{suite}/{method}/t{target}/d{d}", "suite": suite, "method": method, "scene": 0,
+                "target_index": target, "trigger_distance": d, "run_seed": 0, "status": status,
+                "scenario": f"{suite}_t{target}"}
+
+    # `full` ran 4 static tasks, the baseline the first 2; the dynamic suite
+    # (one method) keeps its own 3; a task is also told apart by its trigger distance.
+    records = ([rec("paper_static", "full", t, "success") for t in range(4)]
+               + [rec("paper_static", "direct_grasping", t, "planning") for t in range(2)]
+               + [rec("paper_dynamic", "full", t, "success", 1.7) for t in range(3)]
+               + [rec("paper_dynamic", "nav_and_manip", 0, "success", 1.7), rec("paper_dynamic", "nav_and_manip", 0, "grasp", 2.5)])
+    common = common_task_records(records)
+    static = sorted((r["method"], r["target_index"]) for r in common if r["suite"] == "paper_static")
+    assert static == [("direct_grasping", 0), ("direct_grasping", 1), ("full", 0), ("full", 1)]
+    dynamic = sorted((r["method"], r["target_index"], r["trigger_distance"]) for r in common if r["suite"] == "paper_dynamic")
+    assert dynamic == [("full", 0, 1.7), ("nav_and_manip", 0, 1.7)]
+
+    (tmp_path / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    text = write_report(tmp_path).read_text()
+    section = text.split("## All methods on the same tasks")[1].split("\n## ")[0]
+    assert "paper_static: 2" in section and "paper_dynamic: 1" in section
+    assert "| paper_static | full | 2 | 100.00 |" in section
+    assert "On the tasks every method ran:" in text
+    assert (tmp_path / "paper_comparison.png").stat().st_size > 0
+
+
+def test_report_without_unequal_task_sets_has_no_common_task_section(tmp_path):
+    import json
+
+    from vamg_drake.bench.report import write_report
+
+    records = [{"key": f"static/{m}/{k}", "suite": "static", "method": m, "scene": k, "target_index": 0,
+                "status": "success"} for m in ("full", "nav_and_manip") for k in range(3)]
+    (tmp_path / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    text = write_report(tmp_path).read_text()
+    assert "## All methods on the same tasks" not in text and "On the tasks every method ran:" not in text
+    assert "![against the paper](paper_comparison.png)" in text

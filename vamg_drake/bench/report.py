@@ -17,7 +17,10 @@ its latest record) and writes ``DIR/report.md`` (atomically) plus PNG plots:
 * against the paper: each static/dynamic row (procedural rooms, or the
   authors' tasks in `paper_static`/`paper_dynamic`) beside the paper's (appendix
   table, `vamg_drake.bench.paper_results`), and whether the paper's success
-  rate lies in the measured 95 % Wilson interval.
+  rate lies in the measured 95 % Wilson interval, as a table and a plot;
+* where methods ran different numbers of tasks (a full sweep beside baselines
+  on its first tasks), the same tables over the tasks every method of a
+  suite ran, so that rows compare like with like.
 
 The functions below are what the notebook calls, so notebook and report agree.
 """
@@ -119,6 +122,25 @@ def paper_comparison(rows: list[dict]) -> list[dict]:
         if paper is not None:
             lo, hi = r["success_ci"]
             out.append({**r, "paper": paper, "paper_in_ci": lo <= paper["success"] <= hi})
+    return out
+
+
+def task_of(record: dict) -> tuple:
+    """The task an episode ran, whatever the method: (suite, scene, target
+    index, trigger distance, run seed); records of older sweeps without the
+    target index fall back on the scenario's name."""
+    return (record["suite"], record.get("scene"), record.get("target_index", record.get("scenario")),
+            record.get("trigger_distance"), record.get("run_seed", 0))
+
+
+def common_task_records(records: list[dict]) -> list[dict]:
+    """The records of the tasks that every method of their suite ran."""
+    by_suite = _groups(records, "suite")
+    out = []
+    for (suite,), rs in by_suite.items():
+        tasks = [{task_of(r) for r in g} for g in _groups(rs, "method").values()]
+        common = set.intersection(*tasks)
+        out += [r for r in rs if task_of(r) in common]
     return out
 
 
@@ -265,6 +287,29 @@ def plot_spl(rows: list[dict], path: str | Path) -> None:
     plt.close(fig)
 
 
+def plot_paper_comparison(comparison: list[dict], path: str | Path) -> None:
+    """Per suite, each method's success rate (95 % Wilson error bars) beside the paper's."""
+    matplotlib.use("Agg")
+
+    suites = sorted({r["suite"] for r in comparison})
+    fig, axes = plt.subplots(1, len(suites), figsize=(max(6, 1.3 * len(comparison)), 4), squeeze=False, sharey=True)
+    for ax, suite in zip(axes[0], suites):
+        rows = [r for r in comparison if r["suite"] == suite]
+        x = np.arange(len(rows))
+        ours = np.array([r["success"] for r in rows])
+        err = np.array([[o - r["success_ci"][0], r["success_ci"][1] - o] for o, r in zip(ours, rows)]).T
+        ax.bar(x - 0.2, ours, 0.4, yerr=err, capsize=3, label="measured (95 % Wilson)")
+        ax.bar(x + 0.2, [r["paper"]["success"] for r in rows], 0.4, color="0.6", label="paper")
+        ax.set_xticks(x, [f"{r['method']}\n(n={r['n']})" for r in rows], rotation=20, ha="right", fontsize=8)
+        ax.set_title(suite)
+        ax.set_ylim(0, 100)
+    axes[0][0].set_ylabel("success [%]")
+    axes[0][0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
 def plot_per_scene(records: list[dict], path: str | Path) -> None:
     """Per-scene success rates (one dot per scene) per (suite, method)."""
     matplotlib.use("Agg")
@@ -346,6 +391,12 @@ def _pct(x: float) -> str:
     return "–" if math.isnan(x) else f"{x:.2f}"
 
 
+def _table_line(row: dict) -> str:
+    lo, hi = row["success_ci"]
+    return (f"| {row['suite']} | {row['method']} | {row['n']} | {_pct(row['success'])} | [{lo:.1f}, {hi:.1f}] | "
+            + " | ".join(_pct(row[c]) for c in COLUMNS[1:]) + f" | {_pct(row['spl'])} |")
+
+
 def failed_episode_lines(records: list[dict], directory: Path) -> list[str]:
     """The report's list of failed episodes: status, reason, and a link to the log where one was kept."""
     failed = [r for r in records if r["status"] != SUCCESS]
@@ -390,24 +441,37 @@ def write_report(directory: str | Path) -> Path:
     lines += ["## Results (paper table; all values %)", "",
               "| suite | method | n | success | 95 % Wilson | " + " | ".join(COLUMNS[1:]) + " | SPL |",
               "|---|---|---:|---:|---|" + "---:|" * len(COLUMNS[1:]) + "---:|"]
-    for r in rows:
-        lo, hi = r["success_ci"]
-        lines.append(f"| {r['suite']} | {r['method']} | {r['n']} | {_pct(r['success'])} | [{lo:.1f}, {hi:.1f}] | "
-                     + " | ".join(_pct(r[c]) for c in COLUMNS[1:]) + f" | {_pct(r['spl'])} |")
+    lines += [_table_line(r) for r in rows]
     lines += ["", f"Categories: {', '.join(CATEGORIES)}; `{OTHER}` counts any other status (harness errors, old vocabularies).",
               "Planning failures by kind: " + "; ".join(f"{r['suite']}/{r['method']}: {r['planning_kinds']}" for r in rows if r["planning_kinds"]) or "none", "",
               f"![success]({plots['success']})", "", f"![failures]({plots['failures']})", "", f"![SPL]({plots['spl']})", ""]
+    common = common_task_records(records)
+    common_rows = results_table(common) if len(common) < len(records) else []
+    if common_rows:
+        lines += ["## All methods on the same tasks", "",
+                  "The methods of a suite ran different numbers of tasks; these rows keep only the tasks every method "
+                  "of the suite ran (" + ", ".join(f"{suite}: {len({task_of(r) for r in common if r['suite'] == suite})}"
+                                                  for suite in sorted({r['suite'] for r in common})) + ").", "",
+                  "| suite | method | n | success | 95 % Wilson | " + " | ".join(COLUMNS[1:]) + " | SPL |",
+                  "|---|---|---:|---:|---|" + "---:|" * len(COLUMNS[1:]) + "---:|"]
+        lines += [_table_line(r) for r in common_rows] + [""]
     comparison = paper_comparison(rows)
     if comparison:
         lines += ["## Against the paper", "",
-                  f"Each cell: measured % / the paper's % ({PAPER_EPISODES} episodes per row, appendix table).", "",
-                  "| suite | method | n | " + " | ".join(CATEGORIES) + " | paper's success in our 95 % interval |",
-                  "|---|---|---:|" + "---:|" * len(CATEGORIES) + "---|"]
-        for r in comparison:
-            lines.append(f"| {r['suite']} | {r['method']} | {r['n']} | "
-                         + " | ".join(f"{r[c]:.1f} / {r['paper'][c]:.2f}" for c in CATEGORIES)
-                         + f" | {'yes' if r['paper_in_ci'] else 'no'} |")
-        lines.append("")
+                  f"Each cell: measured % / the paper's % ({PAPER_EPISODES} episodes per row, appendix table).", ""]
+        for title, table in (("", comparison), ("On the tasks every method ran:", paper_comparison(common_rows))):
+            if not table:
+                continue
+            if title:
+                lines += [title, ""]
+            lines += ["| suite | method | n | " + " | ".join(CATEGORIES) + " | paper's success in our 95 % interval |",
+                      "|---|---|---:|" + "---:|" * len(CATEGORIES) + "---|"]
+            lines += [f"| {r['suite']} | {r['method']} | {r['n']} | "
+                      + " | ".join(f"{r[c]:.1f} / {r['paper'][c]:.2f}" for c in CATEGORIES)
+                      + f" | {'yes' if r['paper_in_ci'] else 'no'} |" for r in table]
+            lines.append("")
+        plot_paper_comparison(paper_comparison(common_rows) or comparison, directory / "paper_comparison.png")
+        lines += ["![against the paper](paper_comparison.png)", ""]
     apartments = per_apartment(records, apartment_of_scene(directory))
     if apartments:
         lines += ["## Per apartment (the paper authors' tasks)", "", "| suite | method | apartment | n | success | collision |",
