@@ -324,3 +324,25 @@ def test_a_record_the_report_cannot_read_is_rejected_with_file_line_and_field(tm
     # A minimal record (key and status) gets its defaults and reports.
     (tmp_path / "results.jsonl").write_text(json.dumps({"key": "a", "status": "success"}) + "\n")
     assert main(["report", str(tmp_path)]) == 0
+
+
+def test_report_json_prints_one_summary_line_per_suite_and_method(tmp_path, capsys):
+    def rec(key, method, status, spl_path=None, code="git:abc1234"):
+        return {"key": key, "suite": "paper_static", "method": method, "scene": 0, "status": status,
+                "provenance": {"code_version": code}, "path_length": 4.0, "shortest_path": spl_path}
+
+    records = [rec("a", "full", "success", 2.0), rec("b", "full", "planning", 2.0), rec("c", "full", "success", 2.0),
+               rec("c", "full", "grasp", 2.0, code="git:def5678"),  # run again: the latest record counts
+               rec("a2", "nav_and_manip", "reachability")]
+    (tmp_path / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    assert main(["report", str(tmp_path), "--json"]) == 0
+    lines = [json.loads(l) for l in capsys.readouterr().out.strip().splitlines()]
+    assert [(l["suite"], l["method"]) for l in lines] == [("paper_static", "nav_and_manip"), ("paper_static", "full")]
+    nav, full = lines
+    assert full["episodes"] == 3 and full["success"] == 1 and full["success_rate"] == 0.3333
+    assert full["failures"] == {"grasp": 1, "planning": 1}
+    assert full["code"] == ["git:abc1234", "git:def5678"]
+    assert full["wilson95"] == [6.1, 79.2]
+    assert full["spl"] == 16.7  # one success of three, shortest 2 m over 4 m driven
+    assert nav["spl"] is None and nav["failures"] == {"reachability": 1}
+    assert (tmp_path / "report.md").is_file()

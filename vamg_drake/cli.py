@@ -5,7 +5,7 @@
     vamg scenario import-tasks TASK_FILE --out DIR [--dynamic] [--tasks K]
     vamg maps build            (kinematic maps)
     vamg bench --suite S --methods a,b [--seeds K] --out DIR [--workers N] [--backend local|ray] [--resume [--retry-errors]]
-    vamg report DIR
+    vamg report DIR [--json]
     vamg grasps collect --trials N --out DIR [--workers K] [--seed S]   (physics-labelled grasp trials)
     vamg grasps train --data DIR [--out FILE]                             (the learned grasp-quality model)
 
@@ -30,8 +30,8 @@ from tqdm import tqdm
 
 from vamg_drake.bench.grasps_cli import add_grasps_subparser
 from vamg_drake.bench.methods import MethodError, load_methods
-from vamg_drake.bench.report import write_report
-from vamg_drake.bench.results import ResultsError
+from vamg_drake.bench.report import summary_lines, write_report
+from vamg_drake.bench.results import RESULTS_FILE, ResultsError, latest_records, load_records
 from vamg_drake.bench.runner import episode_specs, prepare_episode_caches, run_sweep
 from vamg_drake.bench.suites import SuiteError, materialize_suite, suite_config
 from vamg_drake.config_validation import InputError
@@ -213,7 +213,11 @@ def _cmd_report(args) -> int:
         path = write_report(args.dir)
     except (FileNotFoundError, ResultsError) as e:
         raise SystemExit(f"vamg report: {e}") from None
-    print(f"wrote {path}")
+    if args.json:
+        for line in summary_lines(latest_records(load_records(Path(args.dir) / RESULTS_FILE))):
+            print(json.dumps(line))
+    else:
+        print(f"wrote {path}")
     return 0
 
 
@@ -274,6 +278,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     report = sub.add_parser("report", help="write DIR/report.md and plots from a results directory")
     report.add_argument("dir", help="results directory (holding results.jsonl)")
+    report.add_argument("--json", action="store_true",
+                        help="print one JSON line per suite and method (episodes, success, Wilson interval, SPL, failures, code)")
     report.set_defaults(func=_cmd_report)
 
     add_maps_subparser(sub)
