@@ -113,27 +113,23 @@ def trigger_sweep(records: list[dict]) -> list[dict]:
 
 
 def summary_lines(records: list[dict]) -> list[dict]:
-    """One summary per (suite, method), as ``vamg report --json`` prints them:
-    episodes, successes, the rate with its 95 % Wilson interval [%], SPL [%],
-    the failure statuses' counts, and the code versions the episodes ran
-    (their provenance's ``code_version``)."""
-    out = []
-    spl_of = {(r["suite"], r["method"]): r["spl"] for r in results_table(records)}
+    """One summary per `results_table` row, as ``vamg report --json`` prints
+    them: episodes, successes, the rate with its 95 % Wilson interval [%],
+    SPL [%], the failure statuses' counts, and the code versions the episodes
+    ran (their provenance's ``code_version``)."""
     groups = _groups(records, "suite", "method")
-    for suite in sorted({k[0] for k in groups}):
-        for method in method_order(m for s, m in groups if s == suite):
-            rs = groups[(suite, method)]
-            n, k = len(rs), sum(r["status"] == SUCCESS for r in rs)
-            lo, hi = wilson_interval(k, n)
-            spl_value = spl_of[(suite, method)]
-            out.append({
-                "suite": suite, "method": method,
-                "code": sorted({str((r.get("provenance") or {}).get("code_version", "unknown")) for r in rs}),
-                "episodes": n, "success": k, "success_rate": round(k / n, 4),
-                "wilson95": [round(100.0 * lo, 1), round(100.0 * hi, 1)],
-                "spl": None if math.isnan(spl_value) else round(spl_value, 1),
-                "failures": dict(sorted(_count(r["status"] for r in rs if r["status"] != SUCCESS).items())),
-            })
+    out = []
+    for row in results_table(records):
+        rs = groups[(row["suite"], row["method"])]
+        k = sum(r["status"] == SUCCESS for r in rs)
+        out.append({
+            "suite": row["suite"], "method": row["method"],
+            "code": sorted({str((r.get("provenance") or {}).get("code_version", "unknown")) for r in rs}),
+            "episodes": row["n"], "success": k, "success_rate": round(k / row["n"], 4),
+            "wilson95": [round(x, 1) for x in row["success_ci"]],
+            "spl": None if math.isnan(row["spl"]) else round(row["spl"], 1),
+            "failures": dict(sorted(_count(r["status"] for r in rs if r["status"] != SUCCESS).items())),
+        })
     return out
 
 
