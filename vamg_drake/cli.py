@@ -30,8 +30,8 @@ from tqdm import tqdm
 
 from vamg_drake.bench.grasps_cli import add_grasps_subparser
 from vamg_drake.bench.methods import MethodError, load_methods
-from vamg_drake.bench.report import summary_lines, write_report
-from vamg_drake.bench.results import RESULTS_FILE, ResultsError, latest_records, load_records
+from vamg_drake.bench.report import load_latest_records, summary_lines, write_report
+from vamg_drake.bench.results import ResultsError
 from vamg_drake.bench.runner import episode_specs, prepare_episode_caches, run_sweep
 from vamg_drake.bench.suites import SuiteError, materialize_suite, suite_config
 from vamg_drake.config_validation import InputError
@@ -210,11 +210,12 @@ def _cmd_bench(args) -> int:
 
 def _cmd_report(args) -> int:
     try:
-        path = write_report(args.dir)
+        loaded = load_latest_records(args.dir)
+        path = write_report(args.dir, loaded)
     except (FileNotFoundError, ResultsError) as e:
         raise SystemExit(f"vamg report: {e}") from None
     if args.json:
-        for line in summary_lines(latest_records(load_records(Path(args.dir) / RESULTS_FILE))):
+        for line in summary_lines(loaded[0]):
             print(json.dumps(line))
     else:
         print(f"wrote {path}")

@@ -434,18 +434,35 @@ def failed_episode_lines(records: list[dict], directory: Path) -> list[str]:
     return lines + [""]
 
 
-def write_report(directory: str | Path) -> Path:
+def load_latest_records(directory: str | Path) -> tuple[list[dict], int]:
+    """The latest record of each episode in ``DIR/results.jsonl``, and how
+    many earlier records of episodes run again it leaves out.
+
+    Raises:
+        FileNotFoundError: no results file, or no finished episode in it.
+        ResultsError: a bad line that is not the last.
+    """
+    path = Path(directory) / RESULTS_FILE
+    all_records = load_records(path)
+    records = latest_records(all_records)
+    if not records:
+        raise FileNotFoundError(f"{path}: no finished episodes yet")
+    return records, len(all_records) - len(records)
+
+
+def write_report(directory: str | Path, loaded: tuple[list[dict], int] | None = None) -> Path:
     """Writes ``DIR/report.md`` and its PNG plots; returns the report's path.
+
+    Args:
+        loaded: `load_latest_records` of ``directory`` when the caller has
+            read it already (default: read here).
 
     Raises:
         FileNotFoundError: no results file.
         ResultsError: a bad line that is not the last.
     """
     directory = Path(directory)
-    all_records = load_records(directory / RESULTS_FILE)
-    records = latest_records(all_records)
-    if not records:
-        raise FileNotFoundError(f"{directory / RESULTS_FILE}: no finished episodes yet")
+    records, superseded = loaded if loaded is not None else load_latest_records(directory)
     rows = results_table(records)
     sweep = trigger_sweep(records)
     cost = compute_cost(records)
@@ -455,7 +472,6 @@ def write_report(directory: str | Path) -> Path:
     plot_failures(rows, directory / plots["failures"])
     plot_spl(rows, directory / plots["spl"])
     plot_per_scene(records, directory / plots["per_scene"])
-    superseded = len(all_records) - len(records)
     lines = [f"# Benchmark report: {directory.name}", "",
              f"{len(records)} episodes from `{RESULTS_FILE}`"
              + (f" ({superseded} earlier records of episodes run again not counted)." if superseded else "."), ""]
@@ -477,10 +493,11 @@ def write_report(directory: str | Path) -> Path:
                   "|---|---|---:|---:|---|" + "---:|" * len(COLUMNS[1:]) + "---:|"]
         lines += [_table_line(r) for r in common_rows] + [""]
     comparison = paper_comparison(rows)
+    common_comparison = paper_comparison(common_rows)
     if comparison:
         lines += ["## Against the paper", "",
                   f"Each cell: measured % / the paper's % ({PAPER_EPISODES} episodes per row, appendix table).", ""]
-        for title, table in (("", comparison), ("On the tasks every method ran:", paper_comparison(common_rows))):
+        for title, table in (("", comparison), ("On the tasks every method ran:", common_comparison)):
             if not table:
                 continue
             if title:
@@ -491,7 +508,7 @@ def write_report(directory: str | Path) -> Path:
                       + " | ".join(f"{r[c]:.1f} / {r['paper'][c]:.2f}" for c in CATEGORIES)
                       + f" | {'yes' if r['paper_in_ci'] else 'no'} |" for r in table]
             lines.append("")
-        plot_paper_comparison(paper_comparison(common_rows) or comparison, directory / "paper_comparison.png")
+        plot_paper_comparison(common_comparison or comparison, directory / "paper_comparison.png")
         lines += ["![against the paper](paper_comparison.png)", ""]
     apartments = per_apartment(records, apartment_of_scene(directory))
     if apartments:
