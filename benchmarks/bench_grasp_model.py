@@ -17,6 +17,14 @@ geometric source's own ranking of the same candidates:
 * ``*_source_heldout``: the same among the candidates the geometric source
   proposes itself (what the policy re-ranks), without the near misses its
   first-contact test rejects that the trials also execute.
+* ``label_consistency_auc``: over every trial, the AUC of predicting each
+  outcome by the outcomes of the other candidates of its trial aimed at the
+  same grasp (within 5 mm and 10 degrees; `label_consistency`), with
+  ``label_consistency_samples``, ``label_consistency_failures`` and
+  ``neighbour_fails_given_fails``. Each candidate is executed once, with
+  execution noise, so an outcome is one draw of the aimed grasp's success
+  probability: this is what knowing another draw buys, a lower bound on what
+  the true probability would score -- how noisy the labels are.
 
 Speed (seeded, no data needed): ``inference_ms_256`` is `LearnedGraspScorer.score`
 for 256 geometric candidates on a can-on-a-table cloud (the grasp-frame crops
@@ -48,7 +56,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from vamg_drake.bench.grasp_trials import load_dataset  # noqa: E402
-from vamg_drake.bench.grasp_training import GraspQualityNet, evaluate, torch_logits  # noqa: E402
+from vamg_drake.bench.grasp_training import GraspQualityNet, evaluate, label_consistency, torch_logits  # noqa: E402
 from vamg_drake.testing import synthetic_clouds as clouds  # noqa: E402
 from vamg_drake.policy.grasp_candidates import AntipodalGraspConfig, AntipodalGraspSampler  # noqa: E402
 from vamg_drake.policy.learned_grasps import (  # noqa: E402
@@ -134,6 +142,13 @@ def main() -> None:
             "success_rate_source_heldout": round(metrics["success_rate_source"], 4),
             "auc_source_heldout": round(metrics["auc_source"], 4),
             "geometric_auc_source_heldout": round(metrics["geometric_auc_source"], 4),
+        })
+        consistency = label_consistency(data)
+        result.update({
+            "label_consistency_auc": round(consistency["auc"], 4),
+            "label_consistency_samples": consistency["samples"],
+            "label_consistency_failures": consistency["failures"],
+            "neighbour_fails_given_fails": round(consistency["neighbour_fails_given_fails"], 4),
         })
     else:
         result["quality"] = "skipped: no --data (or $VAMG_GRASP_DATA) grasp-trial directory"

@@ -24,9 +24,11 @@ from vamg_drake.bench.grasp_training import (
     blend_with_score,
     export,
     fold_score_weight,
+    label_consistency,
     out_of_fold_logits,
     select_score_weight,
     roc_auc,
+    same_aimed_grasp,
     top1_precision,
     torch_logits,
     train,
@@ -181,6 +183,47 @@ def test_a_folded_score_weight_ranks_as_the_blend() -> None:
 def test_metrics() -> None:
     assert roc_auc(np.array([0.1, 0.4, 0.35, 0.8]), np.array([0, 0, 1, 1])) == pytest.approx(0.75)
     assert top1_precision(np.array([0.9, 0.1, 0.2, 0.7]), np.array([1, 0, 0, 0]), np.array([0, 0, 1, 1])) == 0.5
+
+
+def _pose(rotation_axis: int = 2, angle: float = 0.0, p: tuple = (0.0, 0.0, 0.0)) -> np.ndarray:
+    """A pose rotated by ``angle`` about axis ``rotation_axis`` (0: x) at ``p``."""
+    c, s = np.cos(angle), np.sin(angle)
+    i, j = [k for k in range(3) if k != rotation_axis]
+    X = np.eye(4)
+    X[[i, i, j, j], [i, j, i, j]] = [c, -s, s, c]
+    X[:3, 3] = p
+    return X
+
+
+def test_same_aimed_grasp_allows_the_gripper_symmetry_only() -> None:
+    """Within radius and angle, or rolled by half a turn about the approach
+    (+x): the same aimed grasp; moved 1 cm, yawed 30 degrees or rolled a
+    quarter turn: another."""
+    poses = [_pose(), _pose(p=(0.002, 0.0, 0.001)), _pose(p=(0.01, 0.0, 0.0)), _pose(2, np.radians(30.0)),
+             _pose(0, np.pi), _pose(0, np.pi / 2)]
+    same = same_aimed_grasp(np.stack(poses), 0.005, np.radians(10.0))
+    assert same[0].tolist() == [False, True, False, False, True, False]
+    assert np.array_equal(same, same.T)
+
+
+def test_label_consistency_is_the_auc_of_the_neighbours_outcomes() -> None:
+    """Pairs aimed at the same grasp: where the pair agrees, its neighbour
+    predicts each outcome (AUC 1); where every pair disagrees, it predicts the
+    opposite (AUC 0); grasps of different trials are never neighbours."""
+    n_pairs = 6
+    X = np.repeat(np.eye(4)[None], 2 * n_pairs, axis=0)
+    X[:, 0, 3] = np.repeat(np.arange(n_pairs) * 0.1, 2)  # pairs 10 cm apart
+    agree = np.repeat(np.arange(n_pairs) % 2 == 0, 2)
+    data = _synthetic_dataset(2 * n_pairs)
+    data = dc.replace(data, X_WG=X, success=agree, trial=np.zeros(2 * n_pairs, int))
+    consistent = label_consistency(data)
+    assert consistent["auc"] == 1.0 and consistent["samples"] == 2 * n_pairs and consistent["failures"] == n_pairs
+    assert consistent["neighbour_fails_given_fails"] == 1.0
+    disagree = dc.replace(data, success=np.arange(2 * n_pairs) % 2 == 0)
+    assert label_consistency(disagree)["auc"] == 0.0
+    assert label_consistency(disagree)["neighbour_fails_given_fails"] == 0.0
+    apart = dc.replace(data, trial=np.arange(2 * n_pairs))
+    assert label_consistency(apart)["samples"] == 0
 
 
 def test_learned_scorer_reranks_the_geometric_candidates_deterministically() -> None:

@@ -182,6 +182,52 @@ def top1_precision(score: np.ndarray, label: np.ndarray, group: np.ndarray) -> f
     return float(np.mean(hits)) if hits else float("nan")
 
 
+def same_aimed_grasp(X: np.ndarray, radius: float, angle: float) -> np.ndarray:
+    """(K, K) True where grasps X[i] and X[j] (K, 4, 4) are the same aimed
+    grasp up to ``radius`` [m] and ``angle`` [rad]: centres within the radius,
+    approach axes (+x of G) and closing axes (+y, up to sign: the gripper is
+    symmetric) within the angle. The diagonal is False."""
+    X = np.asarray(X, float).reshape(-1, 4, 4)
+    close = np.linalg.norm(X[:, None, :3, 3] - X[None, :, :3, 3], axis=-1) <= radius
+    approach = np.einsum("ki,mi->km", X[:, :3, 0], X[:, :3, 0]) >= np.cos(angle)
+    closing = np.abs(np.einsum("ki,mi->km", X[:, :3, 1], X[:, :3, 1])) >= np.cos(angle)
+    same = close & approach & closing
+    np.fill_diagonal(same, False)
+    return same
+
+
+def label_consistency(data: GraspDataset, radius: float = 0.005, angle: float = np.radians(10.0)) -> dict:
+    """How far one executed outcome predicts another's at the same aimed grasp.
+
+    Within each trial (one object, one pose, one cloud), a sample's outcome is
+    predicted by the mean outcome of the other samples aimed at the same grasp
+    (`same_aimed_grasp`). The trials execute each candidate once, with
+    position and rotation noise, so each outcome is one draw of the aimed
+    grasp's success probability and neighbours are further draws: a low AUC
+    means noisy labels. It is a lower bound on what the true probability
+    would score (a few draws estimate it), not a ceiling.
+
+    Returns:
+        ``auc`` over the samples with such neighbours (NaN without both
+        outcomes), ``samples`` and ``failures`` among them, and
+        ``neighbour_fails_given_fails``: the mean failure rate of a failed
+        sample's neighbours.
+    """
+    predicted, label = [], []
+    for t in np.unique(data.trial):
+        members = np.flatnonzero(data.trial == t)
+        same = same_aimed_grasp(data.X_WG[members], radius, angle)
+        outcome = data.success[members].astype(float)
+        for i in np.flatnonzero(same.any(axis=1)):
+            predicted.append(outcome[same[i]].mean())
+            label.append(bool(data.success[members[i]]))
+    predicted, label = np.array(predicted, float), np.array(label, bool)
+    return {
+        "auc": roc_auc(predicted, label), "samples": int(label.size), "failures": int((~label).sum()),
+        "neighbour_fails_given_fails": float(np.mean(1.0 - predicted[~label])) if (~label).any() else float("nan"),
+    }
+
+
 def _fold_count(config: GraspTrainingConfig) -> int:
     """The object folds of `out_of_fold_logits` (at least 2)."""
     return max(config.folds, 2)
