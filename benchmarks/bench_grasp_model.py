@@ -17,6 +17,13 @@ geometric source's own ranking of the same candidates:
 * ``*_source_heldout``: the same among the candidates the geometric source
   proposes itself (what the policy re-ranks), without the near misses its
   first-contact test rejects that the trials also execute.
+* with trials that execute each candidate several times
+  (``GraspTrialConfig.executions``, recorded as ``executions``):
+  ``top1_hold_fraction_heldout`` / ``geometric_top1_hold_fraction_heldout``,
+  the mean share of executions that held of each scene's first-ranked
+  candidate (its expected success), and ``auc_held_most_heldout`` /
+  ``geometric_auc_held_most_heldout`` against "held in more than half of
+  its executions" (with one execution these equal the metrics above);
 * ``label_consistency_auc``: over every trial, the AUC of predicting each
   outcome by the outcomes of the other candidates of its trial aimed at the
   same grasp (within 5 mm and 10 degrees; `label_consistency`), with
@@ -113,6 +120,13 @@ def speed(model: GraspQualityModel, repeats: int) -> dict:
     }
 
 
+def _executions(data: Path) -> int:
+    """Executions per candidate of the trials in ``data`` (its manifest's config; 1 before the field)."""
+    manifest = data / "manifest.json"
+    config = json.loads(manifest.read_text()).get("config", {}) if manifest.exists() else {}
+    return int(config.get("executions", 1))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true")
@@ -142,6 +156,11 @@ def main() -> None:
             "success_rate_source_heldout": round(metrics["success_rate_source"], 4),
             "auc_source_heldout": round(metrics["auc_source"], 4),
             "geometric_auc_source_heldout": round(metrics["geometric_auc_source"], 4),
+            "executions": _executions(Path(args.data)),
+            "top1_hold_fraction_heldout": round(metrics["top1_hold_fraction"], 4),
+            "geometric_top1_hold_fraction_heldout": round(metrics["geometric_top1_hold_fraction"], 4),
+            "auc_held_most_heldout": round(metrics["auc_held_most"], 4),
+            "geometric_auc_held_most_heldout": round(metrics["geometric_auc_held_most"], 4),
         })
         consistency = label_consistency(data)
         result.update({

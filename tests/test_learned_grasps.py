@@ -73,7 +73,7 @@ def _synthetic_dataset(n: int = 96, seed: int = 0) -> GraspDataset:
     X_WG = np.repeat(np.eye(4)[None], n, axis=0)
     return GraspDataset(crops, X_WG, rng.uniform(0.02, 0.08, n), rng.uniform(0, 1, n), success,
                         np.arange(n) // 4, np.arange(n) % 4, np.array(["a"] * n), np.arange(n) % 3 == 0,
-                        np.arange(n) % 4 == 3, "synthetic")
+                        np.arange(n) % 4 == 3, success.astype(float), "synthetic")
 
 
 def test_collector_labels_grasps_with_both_outcomes(tmp_path: Path) -> None:
@@ -112,6 +112,32 @@ def test_collector_labels_grasps_with_both_outcomes(tmp_path: Path) -> None:
     assert json.loads((tmp_path / "manifest.json").read_text())["seed"] == 0
     with pytest.raises(ValueError, match="manifest.json"):
         collect(tmp_path, trials=2, seed=1, config=config, progress=False, time_budget=0.0)
+
+
+def test_repeated_executions_estimate_the_hold_fraction(tmp_path: Path) -> None:
+    """Each candidate executed three times: the first execution's outcome is
+    the label of a one-execution run (the repeats draw their own noise), the
+    hold fraction counts thirds and includes it; a trial file without the
+    field (format 3, one execution) loads with the outcome as its fraction."""
+    config = GraspTrialConfig(objects=[MIXED_TRIAL["object_name"]], heldout=[], candidates_per_trial=3, top_k=1,
+                              rejected_per_trial=0)
+    once = run_trial(MIXED_TRIAL["index"], MIXED_TRIAL["seed"], config)
+    thrice = run_trial(MIXED_TRIAL["index"], MIXED_TRIAL["seed"], dc.replace(config, executions=3))
+    np.testing.assert_array_equal(thrice.success, once.success)
+    np.testing.assert_array_equal(once.hold_fraction, once.success.astype(float))
+    thirds = 3 * thrice.hold_fraction
+    np.testing.assert_allclose(thirds, np.round(thirds))
+    assert np.all(thrice.hold_fraction[thrice.success] >= 1 / 3 - 1e-9)
+    assert np.all(thrice.hold_fraction[~thrice.success] <= 2 / 3 + 1e-9)
+
+    path = tmp_path / "trial_00000.npz"
+    thrice.save(path)
+    with np.load(path) as f:
+        arrays = {k: f[k] for k in f.files if k != "hold_fraction"}
+    np.savez_compressed(path, **arrays)
+    np.testing.assert_array_equal(TrialResult.load(path).hold_fraction, thrice.success.astype(float))
+    with pytest.raises(ValueError, match="executions"):
+        dc.replace(config, executions=0).validate()
 
 
 def test_the_collector_skips_placements_the_oracle_cannot_lift() -> None:
@@ -183,6 +209,9 @@ def test_a_folded_score_weight_ranks_as_the_blend() -> None:
 def test_metrics() -> None:
     assert roc_auc(np.array([0.1, 0.4, 0.35, 0.8]), np.array([0, 0, 1, 1])) == pytest.approx(0.75)
     assert top1_precision(np.array([0.9, 0.1, 0.2, 0.7]), np.array([1, 0, 0, 0]), np.array([0, 0, 1, 1])) == 0.5
+    # Against hold fractions: the mean fraction of each group's first-ranked sample.
+    assert top1_precision(np.array([0.9, 0.1, 0.2, 0.7]), np.array([0.8, 1.0, 0.0, 0.4]),
+                          np.array([0, 0, 1, 1])) == pytest.approx(0.6)
 
 
 def _pose(rotation_axis: int = 2, angle: float = 0.0, p: tuple = (0.0, 0.0, 0.0)) -> np.ndarray:

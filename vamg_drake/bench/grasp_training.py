@@ -129,7 +129,8 @@ def train(data: GraspDataset, config: GraspTrainingConfig | None = None,
     net = GraspQualityNet(config.point_layers, config.head_layers)
     crops = torch.from_numpy(np.ascontiguousarray(data.crops[:, :config.num_points], dtype=np.float32))
     features = torch.from_numpy(dataset_features(data))
-    labels = torch.from_numpy(data.success.astype(np.float32))
+    # The share of executions that held: a soft label where a candidate ran several times.
+    labels = torch.from_numpy(data.hold_fraction.astype(np.float32))
     positives = float(labels.sum())
     pos_weight = torch.tensor((len(labels) - positives) / max(positives, 1.0))
     loss_fn = torch.nn.BCEWithLogitsLoss(pos_weight=pos_weight)
@@ -174,11 +175,11 @@ def roc_auc(score: np.ndarray, label: np.ndarray) -> float:
 
 
 def top1_precision(score: np.ndarray, label: np.ndarray, group: np.ndarray) -> float:
-    """Success rate of the highest-scored sample of each group (scene)."""
+    """Mean label (success, or a hold fraction) of the highest-scored sample of each group (scene)."""
     hits = []
     for g in np.unique(group):
         members = np.flatnonzero(group == g)
-        hits.append(bool(label[members[np.argmax(score[members])]]))
+        hits.append(float(label[members[np.argmax(score[members])]]))
     return float(np.mean(hits)) if hits else float("nan")
 
 
@@ -296,6 +297,11 @@ def evaluate(model: GraspQualityModel, data: GraspDataset) -> dict:
         "geometric_top1_precision": top1_precision(geometric, data.success, data.trial),
         # The best any ranking of the executed candidates can do: scenes with one that held.
         "best_top1_precision": top1_precision(data.success.astype(float), data.success, data.trial),
+        # Against the share of executions that held (one execution: the same as above).
+        "top1_hold_fraction": top1_precision(p, data.hold_fraction, data.trial),
+        "geometric_top1_hold_fraction": top1_precision(geometric, data.hold_fraction, data.trial),
+        "auc_held_most": roc_auc(p, data.hold_fraction > 0.5),
+        "geometric_auc_held_most": roc_auc(data.score, data.hold_fraction > 0.5),
     }
     # The same among the candidates the source itself proposes (what the
     # policy re-ranks), without the first-contact-rejected near misses.

@@ -57,7 +57,7 @@ REJECTED_RADIUS = 0.01
 REJECTED_ANGLE = math.radians(15.0)
 
 #: Bump when the trial format or the labelling changes.
-TRIAL_FORMAT_VERSION = 3
+TRIAL_FORMAT_VERSION = 4
 
 
 def fetch_oracle_config() -> OracleGraspConfig:
@@ -113,6 +113,13 @@ class GraspTrialConfig:
             candidate on an object lifts it in the ideal free-gripper physics
             and the labels say which object, not which grasp.
         execution_rotation_noise: std of the executed grasp's rotation about a random axis [rad].
+        executions: times each candidate is executed, each with its own
+            execution noise. ``success`` is the first execution's outcome
+            (the same as with one execution: the others draw their noise from
+            their own stream) and ``hold_fraction`` the share of executions
+            that held: one execution is one draw of the aimed grasp's chance
+            to hold, and several estimate it (`label_consistency` measures
+            how noisy single draws are).
         crop: the grasp-frame crop recorded per candidate.
         grasps: the geometric grasp source, with the first-contact test
             leaving out points that face the approach (more candidates on
@@ -139,6 +146,7 @@ class GraspTrialConfig:
     depth_noise: float = 0.001
     execution_position_noise: float = 0.01
     execution_rotation_noise: float = 0.06
+    executions: int = 1
     crop: GraspCropConfig = dc.field(default_factory=GraspCropConfig)
     grasps: AntipodalGraspConfig = dc.field(default_factory=lambda: AntipodalGraspConfig(facing_approach_cos=0.866))
     mirror: MirrorCompletionConfig = dc.field(default_factory=MirrorCompletionConfig)
@@ -148,6 +156,8 @@ class GraspTrialConfig:
         if self.candidates_per_trial < 1 or not 0 <= self.top_k <= self.candidates_per_trial:
             raise ValueError(f"GraspTrialConfig: need candidates_per_trial >= 1 and 0 <= top_k <= it, "
                              f"got {self.candidates_per_trial}, {self.top_k}")
+        if self.executions < 1:
+            raise ValueError(f"GraspTrialConfig: need executions >= 1, got {self.executions}")
         if self.rejected_per_trial < 0 or not 0.0 < self.rejected_score_scale <= 1.0:
             raise ValueError(f"GraspTrialConfig: need rejected_per_trial >= 0 and rejected_score_scale in (0, 1], "
                              f"got {self.rejected_per_trial}, {self.rejected_score_scale}")
@@ -180,6 +190,7 @@ class TrialResult:
     success: np.ndarray  # (K,) bool
     lift: np.ndarray  # (K,)
     rejected: np.ndarray  # (K,) bool: rejected by the source's first-contact test
+    hold_fraction: np.ndarray  # (K,) share of the candidate's executions that held
 
     def save(self, path: Path) -> None:
         arrays = {k: v for k, v in dc.asdict(self).items() if isinstance(v, np.ndarray)}
@@ -194,6 +205,8 @@ class TrialResult:
         with np.load(path, allow_pickle=False) as data:
             meta = json.loads(str(data["meta"]))
             arrays = {k: data[k] for k in data.files if k != "meta"}
+        if "hold_fraction" not in arrays and "success" in arrays:  # format 3: one execution per candidate
+            arrays["hold_fraction"] = arrays["success"].astype(float)
         missing = sorted({f.name for f in dc.fields(TrialResult)} - set(meta) - set(arrays))
         if missing:
             raise ValueError(f"{path}: no {', '.join(missing)} (a trial file of an older format than "
@@ -260,7 +273,7 @@ def run_trial(index: int, seed: int, config: GraspTrialConfig, oracle: OracleGra
         n = config.crop.num_points
         return TrialResult(index, name, heldout, views, mirrored, num, reason, np.zeros((0, n, 3), np.float32),
                            np.zeros(0, int), np.zeros((0, 4, 4)), np.zeros(0), np.zeros(0), np.zeros(0, int),
-                           np.zeros(0, bool), np.zeros(0), np.zeros(0, bool))
+                           np.zeros(0, bool), np.zeros(0), np.zeros(0, bool), np.zeros(0))
 
     drop = None
     for _ in range(config.drop_attempts):
@@ -325,14 +338,20 @@ def run_trial(index: int, seed: int, config: GraspTrialConfig, oracle: OracleGra
     rejected = np.arange(len(rank)) >= k
     # Its own stream: the labels do not depend on how crops are drawn.
     crops, counts = grasp_frame_crops(cloud, X_WG, config.crop, np.random.default_rng([seed, index, 1]))
-    success, lift = np.zeros(len(rank), bool), np.zeros(len(rank))
+    success, lift, holds = np.zeros(len(rank), bool), np.zeros(len(rank)), np.zeros(len(rank))
+    # Its own stream: the first executions' noise and labels are those of a run with one execution.
+    repeat_rng = np.random.default_rng([seed, index, 3])
     for j in range(len(rank)):
-        X_exec = perturbed(X_WG[j], config.execution_position_noise, config.execution_rotation_noise, rng)
-        ok, rise, _ = simulate_grasp(name, X_WO, support,
-                                     oracle_candidate(X_exec, width[j], config.grasps.gripper), oracle)
-        success[j], lift[j] = ok, rise
+        for e in range(config.executions):
+            X_exec = perturbed(X_WG[j], config.execution_position_noise, config.execution_rotation_noise,
+                               rng if e == 0 else repeat_rng)
+            ok, rise, _ = simulate_grasp(name, X_WO, support,
+                                         oracle_candidate(X_exec, width[j], config.grasps.gripper), oracle)
+            holds[j] += ok
+            if e == 0:
+                success[j], lift[j] = ok, rise
     return TrialResult(index, name, heldout, views, mirrored, len(candidates), "", crops.astype(np.float32), counts,
-                       X_WG, width, score, rank.astype(int), success, lift, rejected)
+                       X_WG, width, score, rank.astype(int), success, lift, rejected, holds / config.executions)
 
 
 def _trial_path(out: Path, index: int) -> Path:
@@ -413,9 +432,10 @@ def _write_manifest(out: Path, seed: int, config: GraspTrialConfig, complete: bo
 @dc.dataclass
 class GraspDataset:
     """Samples of a trial directory, flattened: crops (M, N, 3), grasp poses
-    (M, 4, 4), width, score, success, and per sample the trial index, the
-    geometric rank, object, split and whether the source's first-contact
-    test rejected it."""
+    (M, 4, 4), width, score, success (the first execution held), and per
+    sample the trial index, the geometric rank, object, split, whether the
+    source's first-contact test rejected it and the share of its executions
+    that held."""
 
     crops: np.ndarray
     X_WG: np.ndarray
@@ -427,12 +447,13 @@ class GraspDataset:
     objects: np.ndarray
     heldout: np.ndarray
     rejected: np.ndarray
+    hold_fraction: np.ndarray
     digest: str
 
     def subset(self, mask: np.ndarray) -> "GraspDataset":
         return GraspDataset(self.crops[mask], self.X_WG[mask], self.width[mask], self.score[mask], self.success[mask],
                             self.trial[mask], self.rank[mask], self.objects[mask], self.heldout[mask],
-                            self.rejected[mask], self.digest)
+                            self.rejected[mask], self.hold_fraction[mask], self.digest)
 
     def __len__(self) -> int:
         return int(self.success.shape[0])
@@ -457,6 +478,8 @@ def load_dataset(data: str | Path) -> GraspDataset:
         digest.update(f.name.encode())
         digest.update(r.crops.tobytes())
         digest.update(r.success.tobytes())
+        if np.any(r.hold_fraction != r.success):  # trials of one execution keep their digest
+            digest.update(r.hold_fraction.tobytes())
         parts.append(r)
     cat = lambda key: np.concatenate([getattr(r, key) for r in parts])  # noqa: E731
     k = [len(r.success) for r in parts]
@@ -464,5 +487,5 @@ def load_dataset(data: str | Path) -> GraspDataset:
         crops=cat("crops").astype(np.float32), X_WG=cat("X_WG"), width=cat("width"), score=cat("score"), success=cat("success"),
         trial=np.repeat([r.index for r in parts], k), rank=cat("rank"),
         objects=np.repeat([r.object_name for r in parts], k), heldout=np.repeat([r.heldout for r in parts], k),
-        rejected=cat("rejected"), digest=digest.hexdigest()[:16],
+        rejected=cat("rejected"), hold_fraction=cat("hold_fraction"), digest=digest.hexdigest()[:16],
     )
