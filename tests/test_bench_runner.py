@@ -346,3 +346,16 @@ def test_report_json_prints_one_summary_line_per_suite_and_method(tmp_path, caps
     assert full["spl"] == 16.7  # one success of three, shortest 2 m over 4 m driven
     assert nav["spl"] is None and nav["failures"] == {"reachability": 1}
     assert (tmp_path / "report.md").is_file()
+
+
+def test_report_json_common_tasks_counts_only_the_tasks_every_method_ran(tmp_path, capsys):
+    def rec(method, target, status):
+        return {"key": f"{method}/{target}", "suite": "paper_static", "method": method, "scene": 0,
+                "target_index": target, "status": status}
+
+    records = [rec("full", t, "success") for t in range(4)] + [rec("nav_and_manip", t, "planning") for t in (1, 3)]
+    (tmp_path / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    for flags, full_episodes in (([], 4), (["--common-tasks"], 2)):
+        assert main(["report", str(tmp_path), "--json", *flags]) == 0
+        lines = {l["method"]: l for l in map(json.loads, capsys.readouterr().out.strip().splitlines())}
+        assert lines["full"]["episodes"] == full_episodes and lines["nav_and_manip"]["episodes"] == 2

@@ -5,7 +5,7 @@
     vamg scenario import-tasks TASK_FILE --out DIR [--dynamic] [--tasks K]
     vamg maps build            (kinematic maps)
     vamg bench --suite S --methods a,b [--seeds K] --out DIR [--workers N] [--backend local|ray] [--resume [--retry-errors]]
-    vamg report DIR [--json]
+    vamg report DIR [--json [--common-tasks]]
     vamg grasps collect --trials N --out DIR [--workers K] [--seed S]   (physics-labelled grasp trials)
     vamg grasps train --data DIR [--out FILE]                             (the learned grasp-quality model)
 
@@ -30,7 +30,7 @@ from tqdm import tqdm
 
 from vamg_drake.bench.grasps_cli import add_grasps_subparser
 from vamg_drake.bench.methods import MethodError, load_methods
-from vamg_drake.bench.report import load_latest_records, summary_lines, write_report
+from vamg_drake.bench.report import common_task_records, load_latest_records, summary_lines, write_report
 from vamg_drake.bench.results import ResultsError
 from vamg_drake.bench.runner import episode_specs, prepare_episode_caches, run_sweep
 from vamg_drake.bench.suites import SuiteError, materialize_suite, suite_config
@@ -215,7 +215,8 @@ def _cmd_report(args) -> int:
     except (FileNotFoundError, ResultsError) as e:
         raise SystemExit(f"vamg report: {e}") from None
     if args.json:
-        for line in summary_lines(loaded[0]):
+        records = common_task_records(loaded[0]) if args.common_tasks else loaded[0]
+        for line in summary_lines(records):
             print(json.dumps(line))
     else:
         print(f"wrote {path}")
@@ -281,6 +282,8 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument("dir", help="results directory (holding results.jsonl)")
     report.add_argument("--json", action="store_true",
                         help="print one JSON line per suite and method (episodes, success, Wilson interval, SPL, failures, code)")
+    report.add_argument("--common-tasks", action="store_true",
+                        help="with --json: count only the tasks every method of the suite ran")
     report.set_defaults(func=_cmd_report)
 
     add_maps_subparser(sub)
