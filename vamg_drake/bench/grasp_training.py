@@ -29,6 +29,7 @@ import torch
 from scipy.stats import rankdata
 
 from vamg_drake.bench.grasp_trials import GraspDataset
+from vamg_drake.policy.grasp_ranking import same_grasp_pairs
 from vamg_drake.policy.learned_grasps import (
     MODEL_VERSION,
     NUM_FEATURES,
@@ -188,11 +189,7 @@ def same_aimed_grasp(X: np.ndarray, radius: float, angle: float) -> np.ndarray:
     grasp up to ``radius`` [m] and ``angle`` [rad]: centres within the radius,
     approach axes (+x of G) and closing axes (+y, up to sign: the gripper is
     symmetric) within the angle. The diagonal is False."""
-    X = np.asarray(X, float).reshape(-1, 4, 4)
-    close = np.linalg.norm(X[:, None, :3, 3] - X[None, :, :3, 3], axis=-1) <= radius
-    approach = np.einsum("ki,mi->km", X[:, :3, 0], X[:, :3, 0]) >= np.cos(angle)
-    closing = np.abs(np.einsum("ki,mi->km", X[:, :3, 1], X[:, :3, 1])) >= np.cos(angle)
-    same = close & approach & closing
+    same = same_grasp_pairs(X, X, radius, angle, match_roll=True)
     np.fill_diagonal(same, False)
     return same
 

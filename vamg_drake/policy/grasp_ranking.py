@@ -128,16 +128,25 @@ def pose_distance(X1: np.ndarray, X2: np.ndarray, rotation_weight: float = 0.1) 
     return translation + rotation_weight * rotation_angle(X1[..., :3, :3], X2[..., :3, :3])
 
 
+def same_grasp_pairs(X: np.ndarray, X_others: np.ndarray, radius: float, angle: float,
+                     match_roll: bool = False) -> np.ndarray:
+    """(K, M) True where grasp X[k] (K, 4, 4) lies within `radius` [m] of
+    X_others[m] (M, 4, 4) with its approach axis (+x of G) within `angle`
+    [rad] of that one's; with `match_roll`, also its closing axis (+y, up to
+    sign: the gripper is symmetric)."""
+    X, X_others = np.asarray(X, float).reshape(-1, 4, 4), np.asarray(X_others, float).reshape(-1, 4, 4)
+    close = np.linalg.norm(X[:, None, :3, 3] - X_others[None, :, :3, 3], axis=-1) <= radius
+    same = close & (np.einsum("ki,mi->km", X[:, :3, 0], X_others[:, :3, 0]) >= np.cos(angle))
+    if match_roll:
+        same &= np.abs(np.einsum("ki,mi->km", X[:, :3, 1], X_others[:, :3, 1])) >= np.cos(angle)
+    return same
+
+
 def near_any_grasp(X: np.ndarray, X_others: np.ndarray, radius: float, angle: float) -> np.ndarray:
     """(K,) True where grasp X[k] (K, 4, 4) lies within `radius` [m] of one of
     `X_others` (M, 4, 4) with its approach axis (+x of G) within `angle` [rad]
     of that one's: the same grasp whatever its roll about the approach."""
-    X, X_others = np.asarray(X, float).reshape(-1, 4, 4), np.asarray(X_others, float).reshape(-1, 4, 4)
-    if X.shape[0] == 0 or X_others.shape[0] == 0:
-        return np.zeros(X.shape[0], dtype=bool)
-    close = np.linalg.norm(X[:, None, :3, 3] - X_others[None, :, :3, 3], axis=-1) <= radius
-    aligned = np.einsum("ki,mi->km", X[:, :3, 0], X_others[:, :3, 0]) >= np.cos(angle)
-    return np.any(close & aligned, axis=1)
+    return np.any(same_grasp_pairs(X, X_others, radius, angle), axis=1)
 
 
 def farthest_pose_sampling(
