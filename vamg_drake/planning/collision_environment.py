@@ -13,33 +13,9 @@ import math
 import numba
 import numpy as np
 
+from vamg_drake.perception.point_clusters import support_height
 from vamg_drake.planning.distance_field import SQRT3, DistanceField
 from vamg_drake.world.primitives import WorldBox, WorldCylinder
-
-
-def support_height(points: np.ndarray, p_WT: np.ndarray, radius: float, bin_size: float = 0.01,
-                   clearance: float = 0.005) -> float:
-    """The top [m] of the surface a target at p_WT stands on, plus `clearance`
-    for sensor noise: the median height of the most populated `bin_size`
-    height bin of the points within `radius` horizontally and up to `radius`
-    below the target (a table top is a plane of many points; the object's own
-    points spread over its height). -inf when that bin's points do not spread
-    out under the target like a surface (std < 0.3 `radius` along x or y) or
-    there are none. (The median, not the bin's upper edge plus a margin: that
-    can lie up to 2 cm over the table, above the middle of a 2 cm Lego brick.)
-    """
-    p = np.asarray(points, dtype=float).reshape(-1, 3)
-    near = p[(np.linalg.norm(p[:, :2] - p_WT[:2], axis=1) <= radius) & (p[:, 2] <= p_WT[2])
-             & (p[:, 2] >= p_WT[2] - radius)]
-    if near.shape[0] == 0:
-        return -np.inf
-    bins = np.floor(near[:, 2] / bin_size).astype(np.int64)
-    values, counts = np.unique(bins, return_counts=True)
-    top = values[counts == counts.max()].max()
-    plane = near[bins == top]
-    if np.min(np.std(plane[:, :2], axis=0)) < 0.3 * radius:
-        return -np.inf  # no plane spreads under the target: only the object's own points
-    return float(np.median(plane[:, 2]) + clearance)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

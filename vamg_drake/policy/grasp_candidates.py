@@ -34,9 +34,8 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
-from vamg_drake.perception.point_clusters import component_nearest
+from vamg_drake.perception.point_clusters import component_nearest, support_height
 from vamg_drake.perception.voxels import first_in_voxel
-from vamg_drake.planning.collision_environment import support_height
 from vamg_drake.robot.layout import GRIPPER_MAX_OPENING
 
 
