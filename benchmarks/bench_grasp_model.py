@@ -32,6 +32,12 @@ geometric source's own ranking of the same candidates:
   execution noise, so an outcome is one draw of the aimed grasp's success
   probability: this is what knowing another draw buys, a lower bound on what
   the true probability would score -- how noisy the labels are.
+* with several executions per candidate: ``repeat_consistency_auc_heldout``,
+  the AUC of the other executions' hold share against the first
+  execution's outcome (`repeat_consistency`): what knowing the aimed
+  grasp's own chance to hold scores against single outcomes, with
+  ``repeat_consistency_failures_heldout`` and
+  ``others_fail_given_fails_heldout``.
 
 Speed (seeded, no data needed): ``inference_ms_256`` is `LearnedGraspScorer.score`
 for 256 geometric candidates on a can-on-a-table cloud (the grasp-frame crops
@@ -63,7 +69,13 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from vamg_drake.bench.grasp_trials import load_dataset  # noqa: E402
-from vamg_drake.bench.grasp_training import GraspQualityNet, evaluate, label_consistency, torch_logits  # noqa: E402
+from vamg_drake.bench.grasp_training import (  # noqa: E402
+    GraspQualityNet,
+    evaluate,
+    label_consistency,
+    repeat_consistency,
+    torch_logits,
+)
 from vamg_drake.testing import synthetic_clouds as clouds  # noqa: E402
 from vamg_drake.policy.grasp_candidates import AntipodalGraspConfig, AntipodalGraspSampler  # noqa: E402
 from vamg_drake.policy.learned_grasps import (  # noqa: E402
@@ -141,6 +153,7 @@ def main() -> None:
         data = load_dataset(args.data)
         heldout = data.subset(data.heldout)
         metrics = evaluate(model, heldout)
+        executions = _executions(Path(args.data))
         result.update({
             "data_digest": data.digest, "same_data_as_model": data.digest == model.metadata.get("data_digest"),
             "trials": int(len(np.unique(data.trial))), "samples": len(data),
@@ -156,7 +169,7 @@ def main() -> None:
             "success_rate_source_heldout": round(metrics["success_rate_source"], 4),
             "auc_source_heldout": round(metrics["auc_source"], 4),
             "geometric_auc_source_heldout": round(metrics["geometric_auc_source"], 4),
-            "executions": _executions(Path(args.data)),
+            "executions": executions,
             "top1_hold_fraction_heldout": round(metrics["top1_hold_fraction"], 4),
             "geometric_top1_hold_fraction_heldout": round(metrics["geometric_top1_hold_fraction"], 4),
             "auc_held_most_heldout": round(metrics["auc_held_most"], 4),
@@ -169,6 +182,13 @@ def main() -> None:
             "label_consistency_failures": consistency["failures"],
             "neighbour_fails_given_fails": round(consistency["neighbour_fails_given_fails"], 4),
         })
+        if executions > 1:
+            repeats = repeat_consistency(heldout, executions)
+            result.update({
+                "repeat_consistency_auc_heldout": round(repeats["auc"], 4),
+                "repeat_consistency_failures_heldout": repeats["failures"],
+                "others_fail_given_fails_heldout": round(repeats["others_fail_given_fails"], 4),
+            })
     else:
         result["quality"] = "skipped: no --data (or $VAMG_GRASP_DATA) grasp-trial directory"
     result.update(speed(model, args.repeats))

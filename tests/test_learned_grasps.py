@@ -26,6 +26,7 @@ from vamg_drake.bench.grasp_training import (
     fold_score_weight,
     label_consistency,
     out_of_fold_logits,
+    repeat_consistency,
     select_score_weight,
     roc_auc,
     same_aimed_grasp,
@@ -253,6 +254,23 @@ def test_label_consistency_is_the_auc_of_the_neighbours_outcomes() -> None:
     assert label_consistency(disagree)["neighbour_fails_given_fails"] == 0.0
     apart = dc.replace(data, trial=np.arange(2 * n_pairs))
     assert label_consistency(apart)["samples"] == 0
+
+
+def test_repeat_consistency_predicts_the_first_execution_by_the_others() -> None:
+    """Five executions each: where the other four agree with the first, they
+    predict it (AUC 1); where they all disagree, the opposite (AUC 0); the
+    first execution's own outcome never counts towards its predictor."""
+    n = 8
+    first = np.arange(n) % 2 == 0
+    data = dc.replace(_synthetic_dataset(n), success=first, hold_fraction=first.astype(float))
+    agree = repeat_consistency(data, 5)
+    assert agree["auc"] == 1.0 and agree["samples"] == n and agree["failures"] == n // 2
+    assert agree["others_fail_given_fails"] == 1.0
+    # The first held and the other four did not (hold share 1/5), and the reverse (4/5).
+    disagree = dc.replace(data, hold_fraction=np.where(first, 0.2, 0.8))
+    assert repeat_consistency(disagree, 5)["auc"] == 0.0
+    assert repeat_consistency(disagree, 5)["others_fail_given_fails"] == 0.0
+    assert np.isnan(repeat_consistency(data, 1)["auc"])
 
 
 def test_learned_scorer_reranks_the_geometric_candidates_deterministically() -> None:

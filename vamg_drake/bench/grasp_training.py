@@ -226,6 +226,36 @@ def label_consistency(data: GraspDataset, radius: float = 0.005, angle: float = 
     }
 
 
+def repeat_consistency(data: GraspDataset, executions: int) -> dict:
+    """How far a grasp's other executions predict its first one.
+
+    With trials that execute each candidate ``executions`` times
+    (`GraspTrialConfig.executions`), ``success`` is the first execution's
+    outcome and ``hold_fraction`` the share of all executions that held, so
+    the share among the other ``executions - 1`` is
+    ``(executions * hold_fraction - success) / (executions - 1)``. Its AUC
+    against ``success`` is what a scorer that knew the aimed grasp's chance
+    to hold (estimated from the other draws of the very same grasp, the same
+    cloud and pose, fresh execution noise) scores against single outcomes:
+    the noise level of the labels that `label_consistency` estimates from
+    neighbouring grasps.
+
+    Returns:
+        ``auc`` (NaN with one execution or without both outcomes), ``samples``
+        and ``failures`` (first executions that failed), and
+        ``others_fail_given_fails``: the other executions' mean failure rate
+        where the first failed.
+    """
+    if executions < 2:
+        return {"auc": float("nan"), "samples": 0, "failures": 0, "others_fail_given_fails": float("nan")}
+    first = data.success.astype(bool)
+    others = (executions * data.hold_fraction - first) / (executions - 1)
+    return {
+        "auc": roc_auc(others, first), "samples": int(first.size), "failures": int((~first).sum()),
+        "others_fail_given_fails": float(np.mean(1.0 - others[~first])) if (~first).any() else float("nan"),
+    }
+
+
 def _fold_count(config: GraspTrainingConfig) -> int:
     """The object folds of `out_of_fold_logits` (at least 2)."""
     return max(config.folds, 2)
