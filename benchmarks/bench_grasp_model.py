@@ -23,7 +23,9 @@ geometric source's own ranking of the same candidates:
   the mean share of executions that held of each scene's first-ranked
   candidate (its expected success), and ``auc_held_most_heldout`` /
   ``geometric_auc_held_most_heldout`` against "held in more than half of
-  its executions" (with one execution these equal the metrics above);
+  its executions" (with one execution these equal the metrics above), with
+  95 % intervals from resampling whole trials (``*_ci95``,
+  `trial_bootstrap_auc`);
 * ``label_consistency_auc``: over every trial, the AUC of predicting each
   outcome by the outcomes of the other candidates of its trial aimed at the
   same grasp (within 5 mm and 10 degrees; `label_consistency`), with
@@ -174,6 +176,8 @@ def main() -> None:
             "geometric_top1_hold_fraction_heldout": round(metrics["geometric_top1_hold_fraction"], 4),
             "auc_held_most_heldout": round(metrics["auc_held_most"], 4),
             "geometric_auc_held_most_heldout": round(metrics["geometric_auc_held_most"], 4),
+            "auc_held_most_heldout_ci95": [round(v, 4) for v in metrics["auc_held_most_ci95"]],
+            "geometric_auc_held_most_heldout_ci95": [round(v, 4) for v in metrics["geometric_auc_held_most_ci95"]],
         })
         consistency = label_consistency(data)
         result.update({

@@ -32,6 +32,7 @@ from vamg_drake.bench.grasp_training import (
     same_aimed_grasp,
     top1_precision,
     torch_logits,
+    trial_bootstrap_auc,
     train,
     train_model,
 )
@@ -271,6 +272,21 @@ def test_repeat_consistency_predicts_the_first_execution_by_the_others() -> None
     assert repeat_consistency(disagree, 5)["auc"] == 0.0
     assert repeat_consistency(disagree, 5)["others_fail_given_fails"] == 0.0
     assert np.isnan(repeat_consistency(data, 1)["auc"])
+
+
+def test_trial_bootstrap_auc_brackets_the_auc_and_resamples_whole_trials() -> None:
+    """A perfect score gives [1, 1]; a noisy one an interval around its AUC;
+    a single trial gives a zero-width interval (every resample is that trial)."""
+    rng = np.random.default_rng(3)
+    trial = np.repeat(np.arange(20), 6)
+    label = rng.uniform(size=trial.size) < 0.7
+    assert trial_bootstrap_auc(label.astype(float), label, trial) == (1.0, 1.0)
+    noisy = label + rng.normal(0.0, 0.8, trial.size)
+    lo, hi = trial_bootstrap_auc(noisy, label, trial)
+    assert lo < roc_auc(noisy, label) < hi and hi - lo > 0.05
+    one = np.zeros(trial.size, int)
+    lo, hi = trial_bootstrap_auc(noisy, label, one)
+    assert lo == hi == pytest.approx(roc_auc(noisy, label))
 
 
 def test_learned_scorer_reranks_the_geometric_candidates_deterministically() -> None:

@@ -175,6 +175,28 @@ def roc_auc(score: np.ndarray, label: np.ndarray) -> float:
     return float((ranks[label].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
 
 
+def trial_bootstrap_auc(score: np.ndarray, label: np.ndarray, trial: np.ndarray, draws: int = 1000,
+                        seed: int = 0) -> tuple[float, float]:
+    """95 % interval of `roc_auc` over ``draws`` resamples of whole trials
+    (scenes) with replacement: the candidates of one trial share an object,
+    a pose and a cloud, so they are not independent samples. Resamples
+    without both labels are skipped; NaNs if none has them."""
+    members = [np.flatnonzero(trial == t) for t in np.unique(trial)]
+    if not members:
+        return float("nan"), float("nan")
+    rng = np.random.default_rng(seed)
+    aucs = []
+    for _ in range(draws):
+        idx = np.concatenate([members[i] for i in rng.integers(len(members), size=len(members))])
+        aucs.append(roc_auc(score[idx], label[idx]))
+    aucs = np.array(aucs)
+    aucs = aucs[np.isfinite(aucs)]
+    if not len(aucs):
+        return float("nan"), float("nan")
+    lo, hi = np.percentile(aucs, [2.5, 97.5])
+    return float(lo), float(hi)
+
+
 def top1_precision(score: np.ndarray, label: np.ndarray, group: np.ndarray) -> float:
     """Mean label (success, or a hold fraction) of the highest-scored sample of each group (scene)."""
     hits = []
@@ -329,6 +351,8 @@ def evaluate(model: GraspQualityModel, data: GraspDataset) -> dict:
         "geometric_top1_hold_fraction": top1_precision(geometric, data.hold_fraction, data.trial),
         "auc_held_most": roc_auc(p, data.hold_fraction > 0.5),
         "geometric_auc_held_most": roc_auc(data.score, data.hold_fraction > 0.5),
+        "auc_held_most_ci95": trial_bootstrap_auc(p, data.hold_fraction > 0.5, data.trial),
+        "geometric_auc_held_most_ci95": trial_bootstrap_auc(data.score, data.hold_fraction > 0.5, data.trial),
     }
     # The same among the candidates the source itself proposes (what the
     # policy re-ranks), without the first-contact-rejected near misses.
