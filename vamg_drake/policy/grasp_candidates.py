@@ -198,8 +198,9 @@ class AntipodalGraspConfig:
     #: the extreme along the closing axis is the top of one bump: the points
     #: within ``contact_band`` of it are one small curved patch, never across
     #: the pads' middle, although flat pads closing on it rest on several
-    #: bumps at once. 0 (the default): off, until its closed-loop A/B on the
-    #: paper tasks; 0.01 gives the marbles candidates in most single views.
+    #: bumps at once. 0 (the default, as the grasp trials use it): off; 0.01
+    #: gives the marbles candidates in most single views, and the policy uses
+    #: it (`SubgoalPipelineConfig.grasps`).
     rough_contact_band: float = 0.0
     rough_surface_score_scale: float = 0.25
     #: Most candidates returned (highest scores first).

@@ -64,8 +64,12 @@ class SubgoalPipelineConfig:
     ranking: GraspRankingConfig = dc.field(default_factory=lambda: GraspRankingConfig(check_grasp_collision=True))
     pregrasp: PregraspConfig = dc.field(default_factory=PregraspConfig)
     observe: ObserveConfig = dc.field(default_factory=ObserveConfig)
-    #: The geometric grasp candidate source (used unless another source is given).
-    grasps: AntipodalGraspConfig = dc.field(default_factory=AntipodalGraspConfig)
+    #: The geometric grasp candidate source (used unless another source is
+    #: given), with its rough-surface first-contact level on: where a view
+    #: leaves no candidate at the stricter levels (a bag of marbles, whose
+    #: extremes are single bumps), first contacts within 1 cm of the extremes,
+    #: at a quarter score (`AntipodalGraspConfig.rough_contact_band`).
+    grasps: AntipodalGraspConfig = dc.field(default_factory=lambda: AntipodalGraspConfig(rough_contact_band=0.01))
     #: Which source ranks the grasps: the geometric one, or its candidates
     #: re-ranked by the learned grasp-quality model (`vamg_drake.policy.learned_grasps`).
     grasp_source: GraspSourceConfig = dc.field(default_factory=GraspSourceConfig)
