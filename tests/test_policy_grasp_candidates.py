@@ -32,6 +32,7 @@ from vamg_drake.policy.grasp_ranking import (
     rank_grasps,
     select_grasp_goal,
 )
+from vamg_drake.policy.subgoal_pipeline import SubgoalPipelineConfig
 from vamg_drake.robot import layout
 from vamg_drake.robot.layout import GRIPPER_MAX_OPENING
 
@@ -124,6 +125,10 @@ def test_a_bag_of_marbles_is_grasped_with_the_rough_surface_band() -> None:
     rough = AntipodalGraspConfig(rough_contact_band=0.01)
     g = AntipodalGraspSampler(rough).propose(cloud, p_WT)
     assert len(g) > 0, g.failure_reason
+    # The policy's grasp source has the level on; the sampler's own default
+    # (the grasp trials') has it off.
+    policy = AntipodalGraspSampler(SubgoalPipelineConfig().grasps).propose(cloud, p_WT)
+    np.testing.assert_array_equal(policy.X_WG, g.X_WG)
     _assert_valid_frames(g)
     assert np.all(g.score <= rough.rough_surface_score_scale + 1e-9)
     assert np.all(g.width <= GRIPPER_MAX_OPENING)
